@@ -1,0 +1,98 @@
+"""Linear-method speed on the seed's sizes, every figure a ratio to a peer timed in this run.
+
+    python benchmarks/bench_linear.py [--repeats 3]
+
+Sizes: a 5,000 x 2,048 training matrix (2,500 frames of two seasons of the built-in route)
+and 3,569 queries x 3,569 database images. Times are medians of warm runs (compilation
+excluded; it is reported separately). Goals from the foundation issue:
+  PCA fit vs scikit-learn PCA(svd_solver="covariance_eigh")      <= 1.0x
+  whole removed-PC sweep (6 counts) vs one count                 <= 1.5x
+  matching (running top-10) vs numpy brute force                 <= 1.2x
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import jax
+import numpy as np
+from sklearn.decomposition import PCA
+
+from vpr_jax.data.synthetic import synthetic_route
+from vpr_jax.encoders import pca
+from vpr_jax.matching import top_k_matches
+
+REMOVED_PCS = (0, 5, 10, 20, 50, 100)
+
+
+def timed(fn, repeats: int) -> tuple[float, float]:
+    """(first call seconds, median of ``repeats`` further calls)."""
+    start = time.perf_counter()
+    jax.block_until_ready(fn())
+    first = time.perf_counter() - start
+    runs = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn())
+        runs.append(time.perf_counter() - start)
+    return first, statistics.median(runs)
+
+
+def numpy_top_k(q: np.ndarray, d: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    s = q @ d.T
+    part = np.argpartition(-s, k, axis=1)[:, :k]
+    order = np.argsort(-np.take_along_axis(s, part, 1), axis=1)
+    idx = np.take_along_axis(part, order, 1)
+    return np.take_along_axis(s, idx, 1), idx
+
+
+def row(name: str, ours: float, peer: float, peer_name: str, goal: str) -> None:
+    print(f"{name:<34} {ours:9.4f} s  {peer_name:<30} {peer:9.4f} s  "
+          f"ratio {ours / peer:5.2f}x  (goal {goal})")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+
+    n_train, n_test, gap = 2500, 3569, 100
+    route = synthetic_route(n_train + gap + n_test, ("summer", "fall"), seed=0)
+    summer, fall = route.images["summer"], route.images["fall"]
+    train = np.concatenate([summer[:n_train], fall[:n_train]]).reshape(2 * n_train, -1)
+    db = summer[n_train + gap :].reshape(n_test, -1)
+    query = fall[n_train + gap :].reshape(n_test, -1)
+    print(f"jax {jax.__version__} on {jax.devices()[0].platform}; train {train.shape}, "
+          f"queries {query.shape[0]} x database {db.shape[0]}\n")
+
+    first, ours = timed(lambda: pca.fit_pca(train), args.repeats)
+    _, peer = timed(lambda: PCA(svd_solver="covariance_eigh").fit(train), args.repeats)
+    row("PCA fit", ours, peer, "sklearn covariance_eigh", "<= 1.0x")
+    print(f"{'':<34} first call incl. compilation {first:.3f} s")
+
+    state = pca.fit_pca(train)
+
+    def removed_pc_sweep(ks):
+        return top_k_matches(pca.project(state, query), pca.project(state, db), 10, starts=ks)
+
+    _, all_k = timed(lambda: removed_pc_sweep(REMOVED_PCS), args.repeats)
+    _, one_k = timed(lambda: removed_pc_sweep((50,)), args.repeats)
+    row(f"removed-PC sweep, {len(REMOVED_PCS)} counts", all_k, one_k, "one count (k=50)",
+        "<= 1.5x")
+
+    _, ours = timed(lambda: top_k_matches(query, db, 10), args.repeats)
+    _, peer = timed(lambda: numpy_top_k(query, db, 10), args.repeats)
+    row("matching, top-10 cosine", ours, peer, "numpy brute force", "<= 1.2x")
+
+    both = np.concatenate([db, query])
+    _, enc = timed(lambda: pca.project(state, both), args.repeats)
+    print(f"\n{'PCA encode (all components)':<34} {1000 * enc / len(both):9.4f} ms per image "
+          f"(seed's Table 5 baseline: 0.1 ms)")
+
+
+if __name__ == "__main__":
+    main()

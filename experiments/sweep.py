@@ -1,0 +1,272 @@
+"""The sweep runner: season pairs x methods x removed-PC counts into TensorBoard and tables.
+
+    python -m experiments.sweep                       # default preset=quick, all pairs
+    python -m experiments.sweep season_pairs=summer-fall,spring-fall removed_pcs=[0,50]
+
+Writes under ``logdir`` (default runs/<preset>): one TensorBoard run per cell, results.csv
+(a row per finished cell, written atomically as the cell ends), results.md, figures/ and
+sweep.log. Rerunning the same command skips finished cells. Bad input: one line on stderr,
+exit code 2, nothing in the logdir touched.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from omegaconf import OmegaConf
+
+from vpr_jax.config import SweepConfig, identity, parse_config, to_dict
+from vpr_jax.data import SEASON_ORDER, Route, load_route
+from vpr_jax.data.splits import Split, make_split
+from vpr_jax.errors import UserError
+from vpr_jax.methods import METHODS, SWEEPS_REMOVED_PCS, CellOutput, PairData
+from vpr_jax.metrics import evaluate_top_k
+from vpr_jax.plots import correct_matches_figure, pr_curves_figure
+from vpr_jax.progress import Bar
+from vpr_jax.results import (
+    append_results,
+    atomic_write_text,
+    cell_key,
+    markdown_table,
+    read_results,
+)
+from vpr_jax.tb import match_examples, write_cell_run, write_experiment_config
+
+METRIC_KEYS = ("recall_at_1", "precision_at_full_recall", "auc_pr", "recall_at_100_precision",
+               "recall_at_5", "recall_at_10")
+TIMING_KEYS = ("fit_seconds", "encode_ms_per_image")
+INCOMPLETE = ".incomplete"  # TensorBoard runs being written; moved into place when whole
+
+
+class RunLog:
+    """Prints every line and, once the logdir is validated, appends it to sweep.log."""
+
+    def __init__(self):
+        self._lines: list[str] = []
+        self._path: Path | None = None
+
+    def open(self, path: Path) -> None:
+        self._path = path
+        with open(path, "a") as f:
+            f.writelines(line + "\n" for line in self._lines)
+
+    def __call__(self, line: str) -> None:
+        print(line, flush=True)
+        if self._path is None:
+            self._lines.append(line)
+        else:
+            with open(self._path, "a") as f:
+                f.write(line + "\n")
+
+
+def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
+    """``all`` -> every unordered pair, database season first (SEASON_ORDER); else db-query."""
+    if spec.strip() == "all":
+        rank = {s: i for i, s in enumerate(SEASON_ORDER)}
+        ordered = sorted(seasons, key=lambda s: rank.get(s, len(rank)))
+        return list(itertools.combinations(ordered, 2))
+    pairs = []
+    for name in (p.strip() for p in spec.split(",") if p.strip()):
+        db, sep, query = name.partition("-")
+        if not sep or not db or not query or "-" in query:
+            raise UserError(f"season pair {name!r} is not db-query: write e.g. "
+                            "season_pairs=summer-fall,spring-fall or season_pairs=all")
+        if db == query:
+            raise UserError(f"season pair {name!r} names {db} twice: a pair needs two "
+                            "different seasons, e.g. summer-fall")
+        unknown = [s for s in (db, query) if s not in seasons]
+        if unknown:
+            raise UserError(f"season pair {name!r} uses {', '.join(unknown)}, not in "
+                            f"data.seasons={list(seasons)}: add it there or fix the pair")
+        if (db, query) not in pairs:
+            pairs.append((db, query))
+    if not pairs:
+        raise UserError("season_pairs is empty: write season_pairs=all or e.g. summer-fall")
+    return pairs
+
+
+def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
+    """Refuse unusable or foreign log directories before anything is written."""
+    if logdir.exists() and not logdir.is_dir():
+        raise UserError(f"logdir {logdir} is a file: set logdir=PATH to a folder")
+    try:
+        logdir.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=logdir):
+            pass
+    except OSError as err:
+        raise UserError(f"logdir {logdir} is not writable ({err.strerror}): set "
+                        "logdir=PATH to a folder you can write") from None
+    saved, results = logdir / "config.yaml", logdir / "results.csv"
+    if saved.exists():
+        before = OmegaConf.to_container(OmegaConf.load(saved))
+        before = {k: v for k, v in before.items() if k in identity(cfg)}
+        now = OmegaConf.to_container(OmegaConf.create(identity(cfg)))
+        differ = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
+        if differ:
+            raise UserError(f"logdir {logdir} holds results of a different configuration "
+                            f"(differs in {', '.join(differ)}): use a new logdir=PATH, or "
+                            "delete that folder to start fresh")
+    elif results.exists():
+        raise UserError(f"logdir {logdir} has a results.csv but no config.yaml, so it cannot "
+                        "be resumed safely: use a new logdir=PATH")
+
+
+def check_removed_pcs(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> None:
+    if not SWEEPS_REMOVED_PCS & set(cfg.methods):
+        return
+    limit = min(n_train_images - 1, n_pixels)
+    if max(cfg.removed_pcs) >= limit:
+        raise UserError(f"removed_pcs={list(cfg.removed_pcs)} leaves no component: PCA of "
+                        f"{n_train_images} training images has {limit} components, so use "
+                        f"counts below {limit}")
+
+
+def pair_data(route: Route, split: Split, db: str, query: str) -> PairData:
+    images = route.images
+    return PairData(
+        db_season=db,
+        query_season=query,
+        train=np.concatenate([images[db][split.train], images[query][split.train]]),
+        db=images[db][split.test],
+        query=images[query][split.test],
+        db_ids=route.frame_ids[split.test],
+        query_ids=route.frame_ids[split.test],
+    )
+
+
+def run_name(pair: str, method: str, k: int) -> str:
+    return f"{pair}/{method}_k{k:03d}" if method in SWEEPS_REMOVED_PCS else f"{pair}/{method}"
+
+
+def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput) -> dict:
+    """Evaluate one cell and write its TensorBoard run; returns its results.csv row."""
+    pair = f"{data.db_season}-{data.query_season}"
+    ev = evaluate_top_k(out.top_scores, out.top_indices, data.query_ids, data.db_ids,
+                        cfg.tolerance, pr_convention=cfg.pr_convention)
+    scalars = ev.scalars()
+    timings = {"fit_seconds": out.fit_seconds, "encode_ms_per_image": out.encode_ms_per_image}
+    name = run_name(pair, out.method, out.removed_pcs)
+    staging = logdir / INCOMPLETE / name
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    write_cell_run(
+        staging,
+        scalars={**{f"metrics/{k}": v for k, v in scalars.items()},
+                 **{f"timing/{k}": v for k, v in timings.items()}},
+        hparams={"season_pair": pair, "method": out.method,
+                 "removed_pcs": float(out.removed_pcs)},
+        trial_id=name,
+        best_scores=ev.best_scores,
+        best_correct=ev.best_correct,
+        has_match=ev.has_match,
+        n_thresholds=cfg.tb.pr_thresholds,
+        examples=match_examples(data.query, data.db, data.query_ids, data.db_ids,
+                                out.top_indices[:, 0], cfg.tb.n_match_examples),
+        basis_images=out.basis_images,
+    )
+    np.savez(staging / "curve.npz", precision=ev.pr_precision, recall=ev.pr_recall)
+    final = logdir / name
+    final.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(staging, final)
+    return {
+        "season_pair": pair, "db_season": data.db_season, "query_season": data.query_season,
+        "method": out.method, "removed_pcs": out.removed_pcs, "n_train": len(data.train),
+        "n_test": len(data.query), "tolerance": cfg.tolerance, **scalars, **timings,
+        "seed": cfg.seed, "run": name,
+    }
+
+
+def write_summaries(logdir: Path) -> None:
+    rows = read_results(logdir / "results.csv")
+    if not rows:
+        return
+    atomic_write_text(logdir / "results.md", markdown_table(rows))
+    figures = logdir / "figures"
+    figures.mkdir(exist_ok=True)
+
+    def load_curve(row):
+        with np.load(logdir / row["run"] / "curve.npz") as z:
+            return z["precision"], z["recall"]
+
+    pr_curves_figure(rows, load_curve, figures / "pr_curves.png")
+    correct_matches_figure(rows, figures / "correct_matches.png")
+
+
+def run_sweep(cfg: SweepConfig) -> Path:
+    log = RunLog()
+    logdir = Path(cfg.logdir).expanduser().resolve()
+    pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
+    prepare_logdir(logdir, cfg)
+
+    route = load_route(cfg.data, cfg.seed, log)
+    split = make_split(route.frame_ids, cfg.split)
+    check_removed_pcs(cfg, 2 * len(split.train), int(np.prod(route.images[pairs[0][0]].shape[1:])))
+
+    # Validation is over: from here on the logdir is written.
+    atomic_write_text(logdir / "config.yaml", OmegaConf.to_yaml(to_dict(cfg)))
+    log.open(logdir / "sweep.log")
+    shutil.rmtree(logdir / INCOMPLETE, ignore_errors=True)
+    log(f"sweep: {len(route)} frames per season, {len(split.train)} training and "
+        f"{len(split.test)} test places per season, pairs {[f'{a}-{b}' for a, b in pairs]}, "
+        f"methods {list(cfg.methods)}, logdir {logdir}")
+    ks = {m: cfg.removed_pcs if m in SWEEPS_REMOVED_PCS else (0,) for m in cfg.methods}
+    write_experiment_config(
+        logdir,
+        {"season_pair": [f"{a}-{b}" for a, b in pairs], "method": list(cfg.methods),
+         "removed_pcs": [float(k) for m in cfg.methods for k in ks[m]]},
+        [f"metrics/{k}" for k in METRIC_KEYS] + [f"timing/{k}" for k in TIMING_KEYS],
+    )
+
+    done = {cell_key(r) for r in read_results(logdir / "results.csv")}
+    cells = [(p, m, k) for p in pairs for m in cfg.methods for k in ks[m]]
+    todo = [c for c in cells if (f"{c[0][0]}-{c[0][1]}", c[1], c[2]) not in done]
+    if len(todo) < len(cells):
+        log(f"resuming: {len(cells) - len(todo)} of {len(cells)} cells already in results.csv")
+    finished = len(cells) - len(todo)
+    with Bar(len(todo), "sweep cells") as bar:
+        for (db, query), method in itertools.product(pairs, cfg.methods):
+            pair = f"{db}-{query}"
+            pending = tuple(k for (p, m, k) in todo if p == (db, query) and m == method)
+            if not pending:
+                continue
+            data = pair_data(route, split, db, query)
+            for out in METHODS[method](data, pending, cfg):
+                shutil.rmtree(logdir / run_name(pair, method, out.removed_pcs),
+                              ignore_errors=True)  # a run left by a crash before its row
+                row = finish_cell(logdir, cfg, data, out)
+                append_results(logdir / "results.csv", [row])
+                finished += 1
+                bar.advance()
+                k_text = f" k={out.removed_pcs}" if method in SWEEPS_REMOVED_PCS else ""
+                log(f"[{finished}/{len(cells)}] {pair} {method}{k_text}: recall@1 "
+                    f"{row['recall_at_1']:.3f}  auc_pr {row['auc_pr']:.3f}  "
+                    f"R@100P {row['recall_at_100_precision']:.3f}  "
+                    f"fit {row['fit_seconds']:.2f} s  {row['encode_ms_per_image']:.4f} ms/img")
+    write_summaries(logdir)
+    log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
+        f"view with: tensorboard --logdir {logdir}")
+    return logdir
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    try:
+        run_sweep(parse_config(argv))
+    except UserError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted: finished cells are saved in results.csv; run the same command "
+              "again to resume", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

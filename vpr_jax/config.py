@@ -1,0 +1,206 @@
+"""Every knob of a sweep, one frozen dataclass per concern, defaults in one place.
+
+``parse_config(argv)`` layers: these defaults <- ``experiments/configs/<preset>.yaml`` <-
+``key=value`` arguments. Unknown keys, wrong types and invalid values raise ``UserError``
+with one line that names the key and the fix.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from vpr_jax.errors import UserError
+
+PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
+SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")
+METHODS = ("raw", "pca")
+PR_CONVENTIONS = ("vpr_bench", "vpr_tutorial")
+
+
+def _check(ok: bool, message: str) -> None:
+    if not ok:
+        raise UserError(message)
+
+
+def _as_tuple(obj: Any, name: str) -> None:
+    # Lists arrive from OmegaConf as lists; freeze them so configs are hashable values.
+    object.__setattr__(obj, name, tuple(getattr(obj, name)))
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Where images come from. Every source yields frame-aligned (N, 32, 64) seasons."""
+
+    source: str = "synthetic"  # synthetic | nordland_images | nordland_videos | folders
+    root: str | None = None  # data folder (not used by synthetic)
+    seasons: list[str] = field(default_factory=lambda: ["spring", "summer", "fall"])
+    n_frames: int = 3600  # synthetic only: route length in frames per season
+    frame_step: int = 1  # keep every step-th frame (10 on the full route gives ~3,577)
+    frame_list: str | None = None  # Nordland sources: file of frame names / ranges to keep
+    cache_dir: str = "~/.cache/vpr_jax"  # decoded videos are cached here as .npy
+
+    def __post_init__(self):
+        _as_tuple(self, "seasons")
+        _check(self.source in SOURCES, f"data.source={self.source} is unknown: use one of "
+               f"{', '.join(SOURCES)}")
+        _check(len(self.seasons) >= 2, "data.seasons needs at least two seasons, e.g. "
+               "data.seasons=[summer,fall]")
+        _check(len(set(self.seasons)) == len(self.seasons),
+               f"data.seasons={list(self.seasons)} repeats a season: name each once")
+        _check(self.n_frames >= 2, f"data.n_frames={self.n_frames} is too small: use >= 2")
+        _check(self.frame_step >= 1, f"data.frame_step={self.frame_step} must be >= 1")
+        _check(self.source == "synthetic" or self.root is not None,
+               f"data.source={self.source} needs data.root=PATH (the folder with the seasons)")
+        _check(self.source != "synthetic" or self.frame_list is None,
+               "data.frame_list applies to Nordland sources only: drop it for "
+               "data.source=synthetic")
+
+
+@dataclass(frozen=True)
+class SplitConfig:
+    """Training and test places: disjoint stretches of the route, ``gap`` frames apart.
+
+    Counts (the seed's protocol): the first ``n_train`` frames train, the next ``n_test``
+    after the gap test. Setting ``train_fraction`` switches to fractions: that share of the
+    route trains and everything after the gap tests.
+    """
+
+    n_train: int = 2500  # training images per season (the pair contributes 2 x n_train)
+    n_test: int = 450  # test images per season: the database and the queries
+    train_fraction: float | None = None  # e.g. 0.5; overrides n_train/n_test when set
+    gap: int = 100  # original frame indices between the last training and first test frame
+
+    def __post_init__(self):
+        _check(self.n_train >= 1, f"split.n_train={self.n_train} must be >= 1")
+        _check(self.n_test >= 1, f"split.n_test={self.n_test} must be >= 1")
+        _check(self.gap >= 0, f"split.gap={self.gap} must be >= 0")
+        _check(self.train_fraction is None or 0 < self.train_fraction < 1,
+               f"split.train_fraction={self.train_fraction} must lie strictly between 0 and 1")
+
+
+@dataclass(frozen=True)
+class PCAConfig:
+    solver: str = "auto"  # auto | covariance | gram: eigh of the smaller symmetric matrix
+    output: str = "coefficients"  # coefficients | pixels (the seed's back-projection)
+
+    def __post_init__(self):
+        _check(self.solver in ("auto", "covariance", "gram"),
+               f"pca.solver={self.solver} is unknown: use auto, covariance or gram")
+        _check(self.output in ("coefficients", "pixels"),
+               f"pca.output={self.output} is unknown: use coefficients or pixels")
+
+
+@dataclass(frozen=True)
+class MatchingConfig:
+    block_size: int = 4096  # database images scored at once; bounds memory on long routes
+
+    def __post_init__(self):
+        _check(self.block_size >= 1, f"matching.block_size={self.block_size} must be >= 1")
+
+
+@dataclass(frozen=True)
+class TensorBoardConfig:
+    n_match_examples: int = 6  # query | best match | true match rows per run
+    n_basis_images: int = 8  # removed principal components shown as 32x64 eigen-images
+    pr_thresholds: int = 201  # points of the TensorBoard PR curve
+
+    def __post_init__(self):
+        _check(self.pr_thresholds >= 2, "tb.pr_thresholds must be >= 2")
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """``python -m experiments.sweep [key=value ...]``; see README for every key."""
+
+    preset: str = "quick"  # quick | paper: a file under experiments/configs/
+    season_pairs: str = "all"  # all, or db-query pairs: summer-fall,spring-fall
+    methods: list[str] = field(default_factory=lambda: ["raw", "pca"])
+    removed_pcs: list[int] = field(default_factory=lambda: [0, 5, 10, 20, 50, 100])
+    tolerance: int = 2  # a match is correct when |query frame - db frame| <= tolerance
+    pr_convention: str = "vpr_bench"  # vpr_bench | vpr_tutorial recall denominator
+    seed: int = 0  # synthetic route and every random initialisation
+    logdir: str | None = None  # default runs/<preset>
+    data: DataConfig = field(default_factory=DataConfig)
+    split: SplitConfig = field(default_factory=SplitConfig)
+    pca: PCAConfig = field(default_factory=PCAConfig)
+    matching: MatchingConfig = field(default_factory=MatchingConfig)
+    tb: TensorBoardConfig = field(default_factory=TensorBoardConfig)
+
+    def __post_init__(self):
+        _as_tuple(self, "methods")
+        _as_tuple(self, "removed_pcs")
+        if self.logdir is None:
+            object.__setattr__(self, "logdir", f"runs/{self.preset}")
+        unknown = [m for m in self.methods if m not in METHODS]
+        _check(not unknown, f"methods={list(self.methods)} names unknown {unknown}: choose "
+               f"from {', '.join(METHODS)}")
+        _check(len(self.methods) > 0, "methods is empty: e.g. methods=[raw,pca]")
+        negative = [k for k in self.removed_pcs if k < 0]
+        _check(not negative, f"removed_pcs={list(self.removed_pcs)} has negative counts "
+               f"{negative}: use counts >= 0")
+        _check(len(self.removed_pcs) > 0, "removed_pcs is empty: e.g. removed_pcs=[0,50]")
+        object.__setattr__(self, "removed_pcs", tuple(sorted(set(self.removed_pcs))))
+        _check(self.tolerance >= 0, f"tolerance={self.tolerance} must be >= 0")
+        _check(self.pr_convention in PR_CONVENTIONS, f"pr_convention={self.pr_convention} is "
+               f"unknown: use {' or '.join(PR_CONVENTIONS)}")
+
+
+# Keys that may differ between runs sharing a logdir: they add cells or change presentation,
+# never the numbers of a cell already written.
+EXTENDABLE_KEYS = ("preset", "season_pairs", "methods", "removed_pcs", "logdir", "tb",
+                   "matching")
+
+_LIST_KEYS = ("methods", "removed_pcs", "data.seasons")
+
+
+def _normalise_cli(argv: list[str]) -> list[str]:
+    """Accept ``methods=raw,pca`` as well as ``methods=[raw,pca]`` and a list of pairs."""
+    out = []
+    for arg in argv:
+        key, sep, value = arg.partition("=")
+        if not sep:
+            raise UserError(f"argument {arg!r} is not key=value: write e.g. season_pairs=all")
+        if key in _LIST_KEYS and value and not value.startswith("["):
+            value = f"[{value}]"
+        if key == "season_pairs" and value.startswith("["):
+            value = value.strip("[]")
+        out.append(f"{key}={value}")
+    return out
+
+
+def _first_line(err: OmegaConfBaseException) -> str:
+    lines = str(err).splitlines()
+    key = next((ln.split(":", 1)[1].strip() for ln in lines if "full_key:" in ln), "")
+    return f"{lines[0]} (key {key})" if key else lines[0]
+
+
+def parse_config(argv: list[str]) -> SweepConfig:
+    """Build the typed config from ``key=value`` arguments, defaults and the preset file."""
+    try:
+        cli = OmegaConf.from_dotlist(_normalise_cli(argv))
+        preset = cli.get("preset", SweepConfig.preset)
+        preset_file = PRESET_DIR / f"{preset}.yaml"
+        if not preset_file.is_file():
+            known = sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
+            raise UserError(f"preset={preset} has no file {preset_file}: use one of "
+                            f"{', '.join(known)}")
+        merged = OmegaConf.merge(OmegaConf.structured(SweepConfig),
+                                 OmegaConf.load(preset_file), cli)
+        return OmegaConf.to_object(merged)
+    except OmegaConfBaseException as err:
+        raise UserError(f"bad config: {_first_line(err)}: see README 'Config keys'") from None
+
+
+def to_dict(cfg: SweepConfig) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def identity(cfg: SweepConfig) -> dict:
+    """The part of a config that determines the numbers of every cell."""
+    return {k: v for k, v in to_dict(cfg).items() if k not in EXTENDABLE_KEYS}

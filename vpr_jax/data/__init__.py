@@ -1,0 +1,22 @@
+"""Data sources: every one yields a frame-aligned ``Route`` of (N, 32, 64) float32 seasons."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from vpr_jax.config import DataConfig
+from vpr_jax.data.route import IMAGE_SHAPE, SEASON_ORDER, Route
+
+__all__ = ["IMAGE_SHAPE", "SEASON_ORDER", "Route", "load_route"]
+
+
+def load_route(cfg: DataConfig, seed: int, log: Callable[[str], None] = print) -> Route:
+    """Read (or render) every configured season; raises UserError on bad data."""
+    if cfg.source == "synthetic":
+        from vpr_jax.data.synthetic import synthetic_route
+
+        return synthetic_route(cfg.n_frames, cfg.seasons, seed=seed, frame_step=cfg.frame_step)
+    from vpr_jax.data.nordland import load_nordland
+
+    return load_nordland(cfg.source, cfg.root, cfg.seasons, cache_dir=cfg.cache_dir,
+                         frame_list=cfg.frame_list, frame_step=cfg.frame_step, log=log)

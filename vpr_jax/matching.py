@@ -1,0 +1,130 @@
+"""Matching: cosine similarity of query descriptors against the database, with a running top-K.
+
+Similarity matrices here are (n_queries, n_db): row q holds query q's scores against every
+database image. That is the transpose of VPR_Tutorial's S, which is (n_db, n_queries).
+
+``top_k_matches`` walks the database in fixed-size blocks and keeps only the K best scores per
+query, so memory is O(n_queries * (K + block)) whatever the route length.
+
+Descriptors can be scored on several *suffixes* at once: with ``starts=(0, 5, 10)`` the score
+for start s uses only features s, s+1, ... of each descriptor. On PCA coefficients this is
+change removal for every removed-PC count from one pass: the dot product over a suffix is a
+sum of the block products of the segments it covers, so all counts cost one full product.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+_EPS = 1e-12
+
+
+def l2_normalize(x: Float[Array, "n d"], axis: int = -1) -> Float[Array, "n d"]:
+    norm = jnp.sqrt(jnp.sum(x * x, axis=axis, keepdims=True))
+    return x / jnp.maximum(norm, _EPS)
+
+
+@jax.jit
+def cosine_similarity(
+    query_desc: Float[Array, "nq d"], db_desc: Float[Array, "ndb d"]
+) -> Float[Array, "nq ndb"]:
+    """Cosine similarity, (n_queries, n_db). A zero descriptor scores 0 against everything."""
+    return l2_normalize(query_desc) @ l2_normalize(db_desc).T
+
+
+def suffix_cosine(
+    query_desc: Float[Array, "nq d"], db_desc: Float[Array, "ndb d"], starts: tuple[int, ...]
+) -> Float[Array, "s nq ndb"]:
+    """Cosine similarity on descriptor suffixes ``[start:]`` for every start, in one pass.
+
+    ``starts`` must be strictly increasing and each < d. Equivalent to
+    ``stack([cosine_similarity(q[:, s:], db[:, s:]) for s in starts])``.
+    """
+    bounds = (*starts, query_desc.shape[1])
+    dots, q_sq, db_sq = [], [], []
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        q, d = query_desc[:, lo:hi], db_desc[:, lo:hi]
+        dots.append(q @ d.T)
+        q_sq.append(jnp.sum(q * q, axis=1))
+        db_sq.append(jnp.sum(d * d, axis=1))
+    # Reverse cumulative sums: the suffix from starts[i] covers segments i, i+1, ...
+    dot = jnp.cumsum(jnp.stack(dots)[::-1], axis=0)[::-1]
+    qn = jnp.sqrt(jnp.cumsum(jnp.stack(q_sq)[::-1], axis=0)[::-1])
+    dn = jnp.sqrt(jnp.cumsum(jnp.stack(db_sq)[::-1], axis=0)[::-1])
+    return dot / jnp.maximum(qn[:, :, None] * dn[:, None, :], _EPS)
+
+
+@functools.partial(jax.jit, static_argnames=("k", "block_size", "starts"))
+def _top_k_blocks(
+    query_desc: Float[Array, "nq d"],
+    db_blocks: Float[Array, "b blk d"],
+    n_db: Int[Array, ""],
+    k: int,
+    block_size: int,
+    starts: tuple[int, ...],
+):
+    n_starts, nq = len(starts), query_desc.shape[0]
+    init = (
+        jnp.full((n_starts, nq, k), -jnp.inf, query_desc.dtype),
+        jnp.zeros((n_starts, nq, k), jnp.int32),
+    )
+
+    def step(carry, block_and_offset):
+        best_scores, best_idx = carry
+        block, offset = block_and_offset
+        idx = offset + jnp.arange(block_size, dtype=jnp.int32)
+        scores = suffix_cosine(query_desc, block, starts)
+        scores = jnp.where(idx < n_db, scores, -jnp.inf)  # padding never wins
+        scores = jnp.concatenate([best_scores, scores], axis=-1)
+        idx = jnp.concatenate([best_idx, jnp.broadcast_to(idx, (n_starts, nq, block_size))], -1)
+        # Earlier blocks come first in the concatenation and top_k is stable, so ties keep
+        # the lowest database index, as argmax would.
+        top_scores, pos = jax.lax.top_k(scores, k)
+        return (top_scores, jnp.take_along_axis(idx, pos, axis=-1)), None
+
+    offsets = jnp.arange(db_blocks.shape[0], dtype=jnp.int32) * block_size
+    (scores, idx), _ = jax.lax.scan(step, init, (db_blocks, offsets))
+    return scores, idx
+
+
+def top_k_matches(
+    query_desc: Float[Array, "nq d"],
+    db_desc: Float[Array, "ndb d"],
+    k: int = 10,
+    *,
+    starts: tuple[int, ...] = (0,),
+    block_size: int = 4096,
+    query_block_size: int = 4096,
+) -> tuple[Float[np.ndarray, "s nq k"], Int[np.ndarray, "s nq k"]]:
+    """The K best database matches of every query, best first, for every suffix start.
+
+    Returns numpy (scores, indices), each (len(starts), n_queries, min(k, n_db)); indices
+    point into ``db_desc``. Peak memory is about len(starts) * query_block_size * block_size
+    floats, independent of n_db.
+    """
+    query_desc = jnp.asarray(query_desc, jnp.float32)
+    db_desc = jnp.asarray(db_desc, jnp.float32)
+    n_db, d = db_desc.shape
+    starts = tuple(int(s) for s in starts)
+    if not starts or any(b <= a for a, b in zip(starts, starts[1:], strict=False)):
+        raise ValueError(f"starts must be strictly increasing, got {starts}")
+    if starts[0] < 0 or starts[-1] >= d:
+        raise ValueError(f"starts {starts} leave no feature of {d}")
+    k = min(k, n_db)
+    block_size = min(block_size, n_db)
+    n_blocks = -(-n_db // block_size)
+    padded = jnp.pad(db_desc, ((0, n_blocks * block_size - n_db), (0, 0)))
+    db_blocks = padded.reshape(n_blocks, block_size, d)
+    scores, indices = [], []
+    for lo in range(0, query_desc.shape[0], query_block_size):
+        s, i = _top_k_blocks(
+            query_desc[lo : lo + query_block_size], db_blocks, n_db, k, block_size, starts
+        )
+        scores.append(np.asarray(s))
+        indices.append(np.asarray(i))
+    return np.concatenate(scores, axis=1), np.concatenate(indices, axis=1)

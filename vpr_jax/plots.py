@@ -1,0 +1,60 @@
+"""Sweep figures, like the seed's Figs 7-12: PR curves per pair and fractions of correct
+matches. Built from results.csv rows and each cell's saved curve, so a resumed sweep draws
+every cell, not only those it computed this time."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; no display on clusters or CI
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from vpr_jax.results import best_rows  # noqa: E402
+
+
+def _label(row: dict) -> str:
+    return f"{row['method']} (k={row['removed_pcs']})" if row["method"] == "pca" \
+        else row["method"]
+
+
+def pr_curves_figure(rows: list[dict], load_curve: Callable[[dict], tuple], path: Path):
+    """One panel per season pair, one line per method (PCA at its best removed-PC count)."""
+    best = best_rows(rows)
+    pairs = sorted({r["season_pair"] for r in best})
+    fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
+    for ax, pair in zip(axes[0], pairs, strict=True):
+        for row in sorted((r for r in best if r["season_pair"] == pair),
+                          key=lambda r: r["method"]):
+            precision, recall = load_curve(row)
+            ax.plot(recall, precision, label=f"{_label(row)}  AUC {row['auc_pr']:.2f}")
+        ax.set(title=pair, xlabel="recall", ylabel="precision", xlim=(0, 1.01), ylim=(0, 1.02))
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def correct_matches_figure(rows: list[dict], path: Path):
+    """Grouped bars: fraction of correct matches (recall@1) per pair and method."""
+    best = best_rows(rows)
+    pairs = sorted({r["season_pair"] for r in best})
+    methods = sorted({r["method"] for r in best})
+    width = 0.8 / len(methods)
+    fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(pairs), 3.8))
+    for m, method in enumerate(methods):
+        by_pair = {r["season_pair"]: r for r in best if r["method"] == method}
+        x = np.arange(len(pairs)) + (m - (len(methods) - 1) / 2) * width
+        heights = [by_pair[p]["recall_at_1"] if p in by_pair else np.nan for p in pairs]
+        bars = ax.bar(x, heights, width, label=method)
+        ax.bar_label(bars, fmt="%.2f", fontsize=7)
+    ax.set_xticks(np.arange(len(pairs)), pairs)
+    ax.set(ylabel="fraction of correct matches", ylim=(0, 1.08))
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,92 @@
+"""TensorBoard output: one run per sweep cell, plus the HParams experiment at the sweep root.
+
+HParams follow the route that keeps scalars safe (see shared NOTES): the experiment config is
+written once at the root, and each run's hparams go into that run's own writer, instead of
+``add_hparams``, which opens extra writers and can truncate the run's event file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from tensorboard.plugins.hparams import summary_v2 as hp
+from tensorboardX import SummaryWriter
+from tensorboardX.proto.summary_pb2 import Summary
+
+from vpr_jax.metrics import pr_counts
+
+
+def _to_tbx(summary_pb) -> Summary:
+    return Summary.FromString(summary_pb.SerializeToString())
+
+
+def write_experiment_config(logdir: Path, domains: dict[str, list], metric_tags: list[str]):
+    """The HParams experiment: discrete domains of every swept knob and the metric tags."""
+    hparams = [hp.HParam(name, hp.Discrete(sorted(set(values))))
+               for name, values in domains.items()]
+    metrics = [hp.Metric(tag) for tag in metric_tags]
+    with SummaryWriter(str(logdir), filename_suffix=".hparams") as writer:
+        writer.file_writer.add_summary(_to_tbx(hp.hparams_config_pb(hparams, metrics)))
+
+
+def tile(images: np.ndarray, n_cols: int, pad: int = 1) -> np.ndarray:
+    """(n, h, w) images in [0, 1] -> one (rows*(h+pad), cols*(w+pad)) grid, white padding."""
+    n, h, w = images.shape
+    n_rows = -(-n // n_cols)
+    grid = np.ones((n_rows * (h + pad) - pad, n_cols * (w + pad) - pad), np.float32)
+    for i, img in enumerate(images):
+        r, c = divmod(i, n_cols)
+        grid[r * (h + pad) : r * (h + pad) + h, c * (w + pad) : c * (w + pad) + w] = img
+    return grid
+
+
+def normalise_each(images: np.ndarray) -> np.ndarray:
+    """Stretch every image to [0, 1] on its own (eigen-images have arbitrary scale)."""
+    lo = images.min(axis=(1, 2), keepdims=True)
+    hi = images.max(axis=(1, 2), keepdims=True)
+    return (images - lo) / np.maximum(hi - lo, 1e-12)
+
+
+def match_examples(query, db, query_ids, db_ids, best_indices, n: int) -> np.ndarray:
+    """Rows of query | best match | true match for n queries spread over the test stretch."""
+    picks = np.linspace(0, len(query) - 1, min(n, len(query))).round().astype(int)
+    rows = []
+    for q in picks:
+        true = int(np.argmin(np.abs(db_ids - query_ids[q])))
+        rows += [query[q], db[best_indices[q]], db[true]]
+    return tile(np.stack(rows), n_cols=3)
+
+
+def write_cell_run(
+    run_dir: Path,
+    *,
+    scalars: dict[str, float],
+    hparams: dict,
+    trial_id: str,
+    best_scores: np.ndarray,
+    best_correct: np.ndarray,
+    has_match: np.ndarray,
+    n_thresholds: int,
+    examples: np.ndarray,
+    basis_images: np.ndarray | None,
+) -> None:
+    """Everything TensorBoard shows for one cell, at step 0.
+
+    The PR curve uses thresholds linspace(0, 1) on (cosine + 1) / 2 with the VPR-Bench recall
+    (a rejected query that has a true match is a false negative).
+    """
+    thresholds = np.linspace(0.0, 1.0, n_thresholds)
+    tp, fp, tn, fn = pr_counts((best_scores + 1.0) / 2.0, best_correct, has_match, thresholds)
+    precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
+    recall = tp / np.maximum(tp + fn, 1)
+    with SummaryWriter(str(run_dir)) as writer:
+        for tag, value in scalars.items():
+            writer.add_scalar(tag, float(value), global_step=0)
+        writer.add_pr_curve_raw("pr_curve", tp, fp, tn, fn, precision, recall,
+                                global_step=0, num_thresholds=n_thresholds)
+        writer.add_image("matches/query_best_true", examples, global_step=0, dataformats="HW")
+        if basis_images is not None and len(basis_images):
+            grid = tile(normalise_each(basis_images), n_cols=min(4, len(basis_images)))
+            writer.add_image("basis/removed_components", grid, global_step=0, dataformats="HW")
+        writer.file_writer.add_summary(_to_tbx(hp.hparams_pb(hparams, trial_id=trial_id)))
