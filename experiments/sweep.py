@@ -18,6 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import cv2
 import numpy as np
 from omegaconf import OmegaConf
 
@@ -166,6 +167,7 @@ def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput)
         best_correct=ev.best_correct,
         has_match=ev.has_match,
         n_thresholds=cfg.tb.pr_thresholds,
+        pr_convention=cfg.pr_convention,
         examples=match_examples(data.query, data.db, data.query_ids, data.db_ids,
                                 out.top_indices[:, 0], cfg.tb.n_match_examples),
         basis_images=out.basis_images,
@@ -256,6 +258,9 @@ def run_sweep(cfg: SweepConfig) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    # Our readers report unreadable files themselves, in one line; OpenCV's own log would
+    # add a second, less helpful one.
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
         run_sweep(parse_config(argv))
     except UserError as err:

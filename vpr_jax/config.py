@@ -16,11 +16,11 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from vpr_jax.errors import UserError
+from vpr_jax.metrics import PR_CONVENTIONS
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
 SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")
 METHODS = ("raw", "pca")
-PR_CONVENTIONS = ("vpr_bench", "vpr_tutorial")
 
 
 def _check(ok: bool, message: str) -> None:
@@ -123,7 +123,7 @@ class SweepConfig:
     methods: list[str] = field(default_factory=lambda: ["raw", "pca"])
     removed_pcs: list[int] = field(default_factory=lambda: [0, 5, 10, 20, 50, 100])
     tolerance: int = 2  # a match is correct when |query frame - db frame| <= tolerance
-    pr_convention: str = "vpr_bench"  # vpr_bench | vpr_tutorial recall denominator
+    pr_convention: str = "vpr_bench"  # vpr_bench | has_match | vpr_tutorial: PR recall
     seed: int = 0  # synthetic route and every random initialisation
     logdir: str | None = None  # default runs/<preset>
     data: DataConfig = field(default_factory=DataConfig)
@@ -148,7 +148,7 @@ class SweepConfig:
         object.__setattr__(self, "removed_pcs", tuple(sorted(set(self.removed_pcs))))
         _check(self.tolerance >= 0, f"tolerance={self.tolerance} must be >= 0")
         _check(self.pr_convention in PR_CONVENTIONS, f"pr_convention={self.pr_convention} is "
-               f"unknown: use {' or '.join(PR_CONVENTIONS)}")
+               f"unknown: use one of {', '.join(PR_CONVENTIONS)}")
 
 
 # Keys that may differ between runs sharing a logdir: they add cells or change presentation,

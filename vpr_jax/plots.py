@@ -24,7 +24,7 @@ def _label(row: dict) -> str:
 def pr_curves_figure(rows: list[dict], load_curve: Callable[[dict], tuple], path: Path):
     """One panel per season pair, one line per method (PCA at its best removed-PC count)."""
     best = best_rows(rows)
-    pairs = sorted({r["season_pair"] for r in best})
+    pairs = list(dict.fromkeys(r["season_pair"] for r in rows))  # sweep order
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
         for row in sorted((r for r in best if r["season_pair"] == pair),
@@ -42,8 +42,8 @@ def pr_curves_figure(rows: list[dict], load_curve: Callable[[dict], tuple], path
 def correct_matches_figure(rows: list[dict], path: Path):
     """Grouped bars: fraction of correct matches (recall@1) per pair and method."""
     best = best_rows(rows)
-    pairs = sorted({r["season_pair"] for r in best})
-    methods = sorted({r["method"] for r in best})
+    pairs = list(dict.fromkeys(r["season_pair"] for r in rows))  # sweep order
+    methods = list(dict.fromkeys(r["method"] for r in rows))
     width = 0.8 / len(methods)
     fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(pairs), 3.8))
     for m, method in enumerate(methods):

@@ -68,16 +68,18 @@ def write_cell_run(
     best_correct: np.ndarray,
     has_match: np.ndarray,
     n_thresholds: int,
+    pr_convention: str,
     examples: np.ndarray,
     basis_images: np.ndarray | None,
 ) -> None:
     """Everything TensorBoard shows for one cell, at step 0.
 
-    The PR curve uses thresholds linspace(0, 1) on (cosine + 1) / 2 with the VPR-Bench recall
-    (a rejected query that has a true match is a false negative).
+    The PR curve uses thresholds linspace(0, 1) on (cosine + 1) / 2; its counts follow
+    ``pr_convention`` (see vpr_jax.metrics), so TensorBoard's recall is the sweep's recall.
     """
     thresholds = np.linspace(0.0, 1.0, n_thresholds)
-    tp, fp, tn, fn = pr_counts((best_scores + 1.0) / 2.0, best_correct, has_match, thresholds)
+    tp, fp, tn, fn = pr_counts((best_scores + 1.0) / 2.0, best_correct, has_match, thresholds,
+                               pr_convention=pr_convention)
     precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
     recall = tp / np.maximum(tp + fn, 1)
     with SummaryWriter(str(run_dir)) as writer:

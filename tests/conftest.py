@@ -1,0 +1,28 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+# A small but complete sweep: the three default pairs, raw and PCA with three counts.
+SMALL = ["data.n_frames=700", "split.n_train=300", "split.n_test=120", "split.gap=20",
+         "removed_pcs=[0,5,20]"]
+
+
+def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    """``python -m experiments.sweep ARGS`` in a fresh interpreter, as a user runs it."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.run([sys.executable, "-m", "experiments.sweep", *args], cwd=REPO,
+                          env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="session")
+def small_sweep(tmp_path_factory):
+    """One finished small sweep shared by the end-to-end tests (read-only for them)."""
+    logdir = tmp_path_factory.mktemp("sweep") / "runs"
+    proc = run_cli(*SMALL, f"logdir={logdir}")
+    assert proc.returncode == 0, proc.stderr
+    return logdir, proc

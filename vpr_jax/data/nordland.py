@@ -1,0 +1,624 @@
+"""Real Nordland data: the 64x32 image release, raw season videos, any folders of frames.
+
+Every reader returns a :class:`~vpr_jax.data.route.Route`: the frame ids all requested seasons
+share (after an optional frame list and a frame step) and, per season, ``(N, 32, 64)`` float32
+grayscale images in [0, 1] where row i of every season shows the same place.
+
+Sources (``load_nordland(source, ...)``):
+
+- ``nordland_images``: ``ROOT/<season>/images-%05d.png``, exactly 64x32, ids from the names.
+- ``nordland_videos``: ``ROOT/<file naming the season>.mp4`` (any container OpenCV reads),
+  sampled at one frame per second of video time (frame id = second), cached as ``.npz``.
+- ``folders``: ``ROOT/<season>/*.png|jpg|jpeg`` of any size, id = last integer of the name,
+  converted to grayscale and resized with area interpolation.
+
+Mistakes a user can fix raise :class:`~vpr_jax.errors.UserError` with one line naming the
+problem and the fix.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import re
+import tempfile
+import time
+import zipfile
+from collections.abc import Callable, Iterator, Sequence
+from functools import partial, reduce
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from vpr_jax.data.frames import frame_id_from_name, parse_frame_list
+from vpr_jax.data.route import IMAGE_SHAPE, Route
+from vpr_jax.errors import UserError
+from vpr_jax.progress import interactive, track
+
+Log = Callable[[str], None]
+PathLike = str | os.PathLike
+
+SOURCES = ("nordland_images", "nordland_videos", "folders")
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
+VIDEO_EXTENSIONS = tuple(".mp4 .avi .mkv .mov .webm .m4v .mpg .mpeg .wmv .flv .ts".split())
+RELEASE_NAME = re.compile(r"^images-(\d+)\.png$", re.IGNORECASE)
+
+_H, _W = IMAGE_SHAPE
+_SIZE_WH = (_W, _H)  # cv2 takes (width, height)
+# Video timestamps are milliseconds from a rational time base; a frame meant to sit exactly on
+# a second may come back a hair early (1999.9999999 ms).
+_TIME_EPS_S = 1e-6
+CACHE_VERSION = 1
+LOG_EVERY_VIDEO_S = 3600  # a plain progress line per hour of video when not on a terminal
+
+
+# --------------------------------------------------------------------------------------------
+# public readers
+
+
+def load_nordland(
+    source: str,
+    root: PathLike,
+    seasons: Sequence[str],
+    *,
+    cache_dir: PathLike | None,
+    frame_list: PathLike | None = None,
+    frame_step: int = 1,
+    log: Log = print,
+) -> Route:
+    """Read ``seasons`` of the route under ``root`` from ``source`` (one of :data:`SOURCES`)."""
+    if source == "nordland_images":
+        return read_image_release(
+            root, seasons, frame_list=frame_list, frame_step=frame_step, log=log
+        )
+    if source == "nordland_videos":
+        return read_videos(
+            root,
+            seasons,
+            cache_dir=cache_dir,
+            frame_list=frame_list,
+            frame_step=frame_step,
+            log=log,
+        )
+    if source == "folders":
+        return read_folders(root, seasons, frame_list=frame_list, frame_step=frame_step, log=log)
+    raise UserError(
+        f"unknown data source {source!r}: set data.source to one of {', '.join(SOURCES)}"
+    )
+
+
+def read_image_release(
+    root: PathLike,
+    seasons: Sequence[str],
+    *,
+    frame_list: PathLike | None = None,
+    frame_step: int = 1,
+    log: Log = print,
+) -> Route:
+    """Nordland's 64x32 grayscale release: ``ROOT/<season>/images-%05d.png``.
+
+    Frame ids come from the file names (0-based ``images-00000.png`` is kept as id 0). Images
+    must be exactly 64 wide and 32 high; colour PNGs are converted to grayscale.
+    """
+    seasons = _check_seasons(seasons)
+    _check_step(frame_step)
+    root = _check_root(root, "the folder holding " + _folders_hint(seasons))
+    files = {}
+    for season in seasons:
+        folder = _season_dir(root, season, seasons)
+        files[season] = _index_files(
+            folder,
+            season,
+            match=_release_id,
+            empty_hint=(
+                "the 64x32 release names them images-00001.png ...; for other names or sizes "
+                "set data.source=folders"
+            ),
+        )
+    ids = _align(
+        {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()}, frame_list, frame_step, log
+    )
+    images, colour = {}, {}
+    for season in seasons:
+        paths = [files[season][int(i)] for i in ids]
+        images[season], colour[season] = _read_images(paths, season, resize=False)
+    _note_colour(colour, log)
+    log(_summary("nordland_images", ids, seasons, root))
+    return Route(ids, images)
+
+
+def read_folders(
+    root: PathLike,
+    seasons: Sequence[str],
+    *,
+    frame_list: PathLike | None = None,
+    frame_step: int = 1,
+    log: Log = print,
+) -> Route:
+    """Any ``ROOT/<season>/*.png|jpg|jpeg`` folders of aligned frames, of any size.
+
+    Frame id = the last integer in each file name (``frame_2.png`` -> 2, ordered numerically).
+    Images are converted to grayscale and resized to 64x32 with area interpolation.
+    """
+    seasons = _check_seasons(seasons)
+    _check_step(frame_step)
+    root = _check_root(root, "the folder holding " + _folders_hint(seasons))
+    files = {}
+    for season in seasons:
+        folder = _season_dir(root, season, seasons)
+        files[season] = _index_files(
+            folder,
+            season,
+            match=partial(_folder_id, folder),
+            empty_hint="put the frames there as .png, .jpg or .jpeg files numbered in their names",
+        )
+    ids = _align(
+        {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()}, frame_list, frame_step, log
+    )
+    images, colour = {}, {}
+    for season in seasons:
+        paths = [files[season][int(i)] for i in ids]
+        images[season], colour[season] = _read_images(paths, season, resize=True)
+    _note_colour(colour, log)
+    log(_summary("folders", ids, seasons, root))
+    return Route(ids, images)
+
+
+def read_videos(
+    root: PathLike,
+    seasons: Sequence[str],
+    *,
+    cache_dir: PathLike | None,
+    frame_list: PathLike | None = None,
+    frame_step: int = 1,
+    log: Log = print,
+) -> Route:
+    """Season videos in ``root``: the one file whose name contains the season (any case).
+
+    One frame per second of video time: frame id t takes the first decoded frame whose
+    timestamp is >= t seconds (stream timestamps; frame number / fps where those are missing
+    or do not increase). Frames are grayscale, resized to 64x32 with area interpolation and
+    cached under ``cache_dir`` (None: no cache), keyed by the video's absolute path, size,
+    modification time and the target size, so a second run decodes nothing.
+    """
+    seasons = _check_seasons(seasons)
+    _check_step(frame_step)
+    root = _check_root(root, "the folder holding the season videos (e.g. summer.mp4, fall.mp4)")
+    videos = {season: _find_video(root, season) for season in seasons}
+    cache = None
+    if cache_dir is not None:
+        cache = Path(cache_dir).expanduser()
+        try:
+            cache.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise UserError(
+                f"cannot create the video cache folder {cache} ({err.strerror}): "
+                f"set data.cache_dir=PATH to a writable folder"
+            ) from None
+    raw = {season: _video_frames(videos[season], season, cache, log) for season in seasons}
+    ids = _align({s: r[1] for s, r in raw.items()}, frame_list, frame_step, log)
+    images = {}
+    for season in seasons:
+        frames, frame_ids = raw[season]
+        rows = np.searchsorted(frame_ids, ids)
+        images[season] = _to_unit_float(frames[rows])
+    log(_summary("nordland_videos", ids, seasons, root))
+    return Route(ids, images)
+
+
+# --------------------------------------------------------------------------------------------
+# checks and listing
+
+
+def _check_seasons(seasons: Sequence[str]) -> tuple[str, ...]:
+    if isinstance(seasons, str):
+        seasons = [seasons]
+    seasons = tuple(dict.fromkeys(seasons))
+    if not seasons:
+        raise UserError("no season to read: set data.seasons=[summer,fall] or similar")
+    for season in seasons:
+        if not isinstance(season, str) or season in ("", ".", "..") or Path(season).name != season:
+            raise UserError(
+                f"season {season!r} is not a plain folder name: set data.seasons to names "
+                f"like spring, summer, fall, winter"
+            )
+    return seasons
+
+
+def _check_step(frame_step: int) -> None:
+    if isinstance(frame_step, bool) or not isinstance(frame_step, (int, np.integer)):
+        raise UserError(f"data.frame_step={frame_step!r} is not an integer: set it to 1 or more")
+    if frame_step < 1:
+        raise UserError(f"data.frame_step={frame_step} keeps no frame: set it to 1 or more")
+
+
+def _folders_hint(seasons: Sequence[str]) -> str:
+    return " ".join(f"{s}/" for s in seasons)
+
+
+def _check_root(root: PathLike, holding: str) -> Path:
+    path = Path(root).expanduser()
+    fix = f"set data.root=PATH to {holding}"
+    if not path.exists():
+        raise UserError(f"data root {path} does not exist: {fix}")
+    if not path.is_dir():
+        raise UserError(f"data root {path} is not a directory: {fix}")
+    if not any(path.iterdir()):
+        raise UserError(f"data root {path} is empty: {fix}")
+    return path
+
+
+def _season_dir(root: Path, season: str, seasons: Sequence[str]) -> Path:
+    folder = root / season
+    if folder.is_dir():
+        return folder
+    present = sorted(p.name for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
+    found = ", ".join(present) if present else "no folders"
+    raise UserError(
+        f"season folder {folder} is missing ({root} holds {found}): set data.root to the folder "
+        f"holding {_folders_hint(seasons)} or data.seasons to the seasons it holds"
+    )
+
+
+def _release_id(name: str) -> int | None:
+    m = RELEASE_NAME.match(name)
+    return int(m.group(1)) if m else None
+
+
+def _folder_id(folder: Path, name: str) -> int | None:
+    if not name.lower().endswith(IMAGE_EXTENSIONS):
+        return None
+    frame = frame_id_from_name(name)
+    if frame is None:
+        raise UserError(
+            f"image {folder / name} has no number in its name, so its place on the route is "
+            f"unknown: rename it (e.g. frame_00017.png) or move it out of {folder}"
+        )
+    return frame
+
+
+def _index_files(
+    folder: Path, season: str, *, match: Callable[[str], int | None], empty_hint: str
+) -> dict[int, Path]:
+    """frame id -> file, in increasing frame id order; names ``match`` returns None for skip."""
+    found: dict[int, Path] = {}
+    with os.scandir(folder) as entries:
+        for entry in entries:
+            # ._name files are macOS metadata next to the real images, not images.
+            if entry.name.startswith(".") or not entry.is_file():
+                continue
+            frame = match(entry.name)
+            if frame is None:
+                continue
+            if frame in found:
+                first, second = sorted([found[frame].name, entry.name])
+                raise UserError(
+                    f"season {season}: {folder / first} and {folder / second} both claim frame "
+                    f"{frame}: keep one of them"
+                )
+            found[frame] = Path(entry.path)
+    if not found:
+        raise UserError(f"season folder {folder} holds no images: {empty_hint}")
+    return dict(sorted(found.items()))
+
+
+# --------------------------------------------------------------------------------------------
+# alignment of seasons, frame list, frame step
+
+
+def _align(
+    available: dict[str, np.ndarray],
+    frame_list: PathLike | None,
+    frame_step: int,
+    log: Log,
+) -> np.ndarray:
+    """The sorted frame ids to read: listed (if a list), common to all seasons, every step-th."""
+    available = {s: np.unique(np.asarray(ids, dtype=np.int64)) for s, ids in available.items()}
+    if frame_list is not None:
+        wanted = parse_frame_list(frame_list)
+        missing = {s: np.setdiff1d(wanted, ids, assume_unique=True) for s, ids in available.items()}
+        if any(m.size for m in missing.values()):
+            absent = reduce(np.union1d, missing.values())
+            first = ", ".join(str(int(i)) for i in absent[:5])
+            per_season = ", ".join(f"{s} {m.size:,}" for s, m in missing.items() if m.size)
+            raise UserError(
+                f"frame list {frame_list} names {absent.size:,} frames absent from the data "
+                f"({per_season}; first: {first}): remove them from the list or point "
+                f"data.root at data that holds them"
+            )
+        available = {s: wanted for s in available}
+    common = reduce(np.intersect1d, available.values())
+    if common.size == 0:
+        spans = ", ".join(f"{s} {ids[0]}..{ids[-1]} ({ids.size:,})" for s, ids in available.items())
+        raise UserError(
+            f"seasons share no frame id ({spans}): every season must hold the same places "
+            f"under the same frame numbers; check data.root and data.seasons"
+        )
+    lost = {s: ids.size - common.size for s, ids in available.items()}
+    if any(lost.values()):
+        dropped = ", ".join(f"{s} {n:,}" for s, n in lost.items())
+        log(
+            f"seasons hold different frames: keeping the {common.size:,} common to all; "
+            f"frames dropped per season: {dropped}"
+        )
+    return common[::frame_step]
+
+
+def _summary(source: str, ids: np.ndarray, seasons: Sequence[str], root: Path) -> str:
+    return (
+        f"{source}: {ids.size:,} frames x {len(seasons)} seasons ({', '.join(seasons)}), "
+        f"frames {ids[0]}..{ids[-1]}, from {root}"
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# images
+
+
+def _read_images(paths: list[Path], season: str, *, resize: bool) -> tuple[np.ndarray, int]:
+    """(N, 32, 64) float32 in [0, 1] and how many of the files were colour."""
+    out = np.empty((len(paths), _H, _W), dtype=np.float32)
+    colour = 0
+    for i, path in enumerate(track(paths, f"reading {season}", total=len(paths))):
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise UserError(_unreadable(path))
+        h, w = img.shape[:2]
+        if not resize and (h, w) != IMAGE_SHAPE:
+            raise UserError(
+                f"image {path} is {w}x{h}, the 64x32 release reader needs exactly 64 wide x 32 "
+                f"high: set data.source=folders to resize images of any size"
+            )
+        gray, was_colour = _gray(img, path)
+        colour += was_colour
+        gray = _to_unit_float(gray)
+        if (h, w) != IMAGE_SHAPE:
+            gray = cv2.resize(gray, _SIZE_WH, interpolation=cv2.INTER_AREA)
+        out[i] = gray
+    if resize:
+        np.clip(out, 0.0, 1.0, out=out)
+    return out, colour
+
+
+def _unreadable(path: Path) -> str:
+    try:
+        size = path.stat().st_size
+    except OSError:
+        size = None
+    if size == 0:
+        return f"image {path} is empty (0 bytes): re-copy or re-extract it, or delete it"
+    return (
+        f"image {path} cannot be read (corrupt, truncated, not an image or not readable): "
+        f"re-copy or re-extract it, or delete it"
+    )
+
+
+def _gray(img: np.ndarray, path: Path) -> tuple[np.ndarray, bool]:
+    """Single-channel image and whether the input was colour (BGR / BGRA)."""
+    if img.ndim == 2:
+        return img, False
+    channels = img.shape[2]
+    if channels == 1:
+        return img[..., 0], False
+    if channels == 3:
+        return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), True
+    if channels == 4:
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY), True
+    raise UserError(f"image {path} has {channels} channels: save it as grayscale or RGB")
+
+
+def _to_unit_float(img: np.ndarray) -> np.ndarray:
+    """uint8 / uint16 / float image -> float32 in [0, 1]."""
+    if img.dtype == np.uint8:
+        return img.astype(np.float32) / np.float32(255)
+    if img.dtype == np.uint16:
+        return img.astype(np.float32) / np.float32(65535)
+    return np.clip(img.astype(np.float32), 0.0, 1.0)
+
+
+def _note_colour(colour: dict[str, int], log: Log) -> None:
+    if any(colour.values()):
+        where = ", ".join(f"{s} {n:,}" for s, n in colour.items() if n)
+        log(f"converted colour images to grayscale ({where})")
+
+
+# --------------------------------------------------------------------------------------------
+# videos
+
+
+def _find_video(root: Path, season: str) -> Path:
+    files = [p for p in root.iterdir() if p.is_file() and not p.name.startswith(".")]
+    videos = [p for p in files if p.suffix.lower() in VIDEO_EXTENSIONS]
+    hits = sorted(p for p in videos if season.lower() in p.name.lower())
+    if len(hits) == 1:
+        return hits[0]
+    if not hits:
+        present = ", ".join(sorted(p.name for p in videos)) or "no video files"
+        raise UserError(
+            f"no video for season {season} in {root} ({present}): name its video so the name "
+            f"contains {season!r} (e.g. {season}.mp4) or set data.root to its folder"
+        )
+    names = ", ".join(p.name for p in hits)
+    raise UserError(
+        f"several videos in {root} name season {season} ({names}): keep exactly one of them there"
+    )
+
+
+def _video_frames(
+    video: Path, season: str, cache_dir: Path | None, log: Log
+) -> tuple[np.ndarray, np.ndarray]:
+    """(frames (N, 32, 64) uint8 or float, frame ids (N,) int64) from the cache or the video."""
+    cache = _cache_path(video, cache_dir) if cache_dir is not None else None
+    if cache is not None and cache.exists():
+        return _load_cache(cache)
+    start = time.perf_counter()
+    frames, ids = _decode_video(video, season, log)
+    took = time.perf_counter() - start
+    note = ""
+    if cache is not None:
+        try:
+            _write_cache(cache, frames, ids)
+            note = f", cached in {cache}"
+        except OSError as err:
+            note = f"; could not write the cache {cache} ({err}), the next run decodes again"
+    log(f"{season}: {ids.size:,} frames (1 per second) from {video} in {took:.1f} s{note}")
+    return frames, ids
+
+
+def _cache_path(video: Path, cache_dir: Path) -> Path:
+    absolute = video.resolve()
+    stat = absolute.stat()
+    key = json.dumps(
+        [str(absolute), stat.st_size, stat.st_mtime_ns, list(IMAGE_SHAPE), CACHE_VERSION]
+    )
+    digest = hashlib.sha256(key.encode()).hexdigest()[:16]
+    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", video.stem)[:60]
+    return cache_dir / f"{stem}-{_W}x{_H}-{digest}.npz"
+
+
+def _write_cache(path: Path, frames: np.ndarray, ids: np.ndarray) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, frames=frames, frame_ids=ids)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def _load_cache(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    fix = "delete it and run again to rebuild it from the video"
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if set(data.files) != {"frames", "frame_ids"}:
+                raise UserError(
+                    f"video cache {path} holds {sorted(data.files)}, not frames and frame_ids: "
+                    f"{fix}"
+                )
+            frames, ids = data["frames"], data["frame_ids"]
+    except UserError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
+        raise UserError(f"video cache {path} cannot be read ({err}): {fix}") from None
+    if frames.ndim != 3 or frames.shape[1:] != IMAGE_SHAPE or frames.shape[0] == 0:
+        raise UserError(
+            f"video cache {path} holds frames of shape {frames.shape}, not (N, {_H}, {_W}): {fix}"
+        )
+    if ids.shape != frames.shape[:1] or not np.issubdtype(ids.dtype, np.integer):
+        raise UserError(
+            f"video cache {path} holds frame ids of shape {ids.shape} ({ids.dtype}) for "
+            f"{frames.shape[0]} frames: {fix}"
+        )
+    if np.any(np.diff(ids) <= 0):
+        raise UserError(f"video cache {path} holds frame ids that do not increase: {fix}")
+    if frames.dtype != np.uint8:
+        if not np.issubdtype(frames.dtype, np.floating):
+            raise UserError(f"video cache {path} holds {frames.dtype} frames, not uint8: {fix}")
+        if not np.all(np.isfinite(frames)):
+            raise UserError(f"video cache {path} holds NaN or Inf pixels: {fix}")
+        if frames.min() < 0 or frames.max() > 1:
+            raise UserError(f"video cache {path} holds pixels outside [0, 1]: {fix}")
+    return frames, ids.astype(np.int64)
+
+
+def _grabbed(cap: cv2.VideoCapture) -> Iterator[int]:
+    k = 0
+    while cap.grab():
+        yield k
+        k += 1
+
+
+def _decode_video(video: Path, season: str, log: Log) -> tuple[np.ndarray, np.ndarray]:
+    """Sample one frame per second of video time: (frames (N, 32, 64) uint8, ids 0..N-1)."""
+    cap = cv2.VideoCapture(str(video))
+    try:
+        if not cap.isOpened():
+            raise UserError(
+                f"video {video} cannot be opened by OpenCV (corrupt, truncated or an unknown "
+                f"codec): re-download it or re-encode it, e.g. ffmpeg -i IN -c:v libx264 OUT.mp4"
+            )
+        fps = cap.get(cv2.CAP_PROP_FPS)
+        fps = fps if math.isfinite(fps) and fps > 0 else 0.0
+        count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+        total = int(count) if math.isfinite(count) and count > 0 else None
+
+        frames: list[np.ndarray] = []
+        next_second = 0  # the frame id (= second of video time) still to fill
+        by_stream = True  # trust CAP_PROP_POS_MSEC until it stops increasing
+        prev_ms = -math.inf
+        seconds = None
+        n_decoded = 0
+        next_log = LOG_EVERY_VIDEO_S
+        quiet = interactive()
+        for k in track(_grabbed(cap), f"decoding {season} video", total=total):
+            n_decoded = k + 1
+            if by_stream:
+                ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+                if math.isfinite(ms) and ms >= 0 and (ms > prev_ms or (k == 0 and ms == 0)):
+                    prev_ms = ms
+                    seconds = ms / 1000.0
+                else:
+                    by_stream = False
+                    if fps == 0:
+                        raise UserError(
+                            f"video {video} has neither usable timestamps nor a frame rate: "
+                            f"re-encode it, e.g. ffmpeg -i IN -c:v libx264 -r 25 OUT.mp4"
+                        )
+                    log(
+                        f"{season}: {video.name} has no usable timestamps from frame {k} on: "
+                        f"timing frames as frame number / {fps:g} fps"
+                    )
+            if not by_stream:
+                seconds = k / fps
+            if seconds + _TIME_EPS_S < next_second:
+                continue
+            ok, img = cap.retrieve()
+            if not ok or img is None:
+                raise UserError(
+                    f"video {video}: frame {k} ({seconds:.2f} s) cannot be decoded: "
+                    f"re-download or re-encode the video"
+                )
+            small = _small_gray(img)
+            # A gap in the stream longer than a second repeats the frame after it.
+            while seconds + _TIME_EPS_S >= next_second:
+                frames.append(small)
+                next_second += 1
+            if not quiet and seconds >= next_log:
+                log(f"{season}: {int(seconds):,} s of video decoded")
+                next_log += LOG_EVERY_VIDEO_S
+    finally:
+        cap.release()
+
+    if n_decoded == 0:
+        raise UserError(
+            f"video {video} holds no frame OpenCV can decode: re-download or re-encode it"
+        )
+    duration = seconds + (1.0 / fps if fps else 0.0)
+    if duration + _TIME_EPS_S < 1.0:
+        raise UserError(
+            f"video {video} lasts only {duration:.2f} s, less than the one second a frame is "
+            f"sampled from: use the full season video"
+        )
+    return np.stack(frames), np.arange(len(frames), dtype=np.int64)
+
+
+def _small_gray(img: np.ndarray) -> np.ndarray:
+    """A decoded frame -> (32, 64) uint8 grayscale, area-resized."""
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    elif img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
+    elif img.ndim == 3:
+        img = img[..., 0]
+    if img.dtype != np.uint8:
+        img = np.clip(np.rint(_to_unit_float(img) * 255), 0, 255).astype(np.uint8)
+    return cv2.resize(img, _SIZE_WH, interpolation=cv2.INTER_AREA)
