@@ -1,0 +1,518 @@
+"""Place-recognition metrics: PR curve, AUC-PR, precision at 100% recall, R@100P, recall@K.
+
+Pure numpy on results already fetched from devices; no file IO. Everything works from each
+query's top-K database matches, so a caller matching a 35,768-frame route never needs the full
+(n_queries, n_db) similarity matrix (:func:`evaluate_top_k`); :func:`evaluate` is the
+convenience wrapper for a matrix that fits in memory.
+
+Ground truth
+    Query with original frame id ``q`` matches database frame ``d`` when ``|q - d| <= tolerance``.
+    ``has_match[i]`` says whether the database holds any true match for query ``i`` (found with
+    ``searchsorted`` on a sorted copy of ``db_ids``: O((Nq + Ndb) log Ndb), never an
+    (Nq, Ndb) boolean matrix); a retrieved index is correct when its frame id is within
+    ``tolerance`` of the query's.
+
+Single-best-match PR curve (VPR-Bench, CALC, VPR_Tutorial ``matching='single'``)
+    Each query keeps its single best match and that match's score. Every distinct best score is
+    a threshold, highest first; a query is *accepted* at threshold ``t`` iff ``score >= t``.
+    ``TP = accepted & correct`` and ``FP = accepted & ~correct``, so precision
+    ``TP / (TP + FP)`` is the same in every convention. Conventions differ in recall only:
+
+    ``"vpr_bench"`` (default)
+        ``recall = TP / n_correct``, with ``n_correct`` the number of queries whose best match is
+        correct, i.e. ``FN = rejected & correct``. This is scikit-learn's
+        ``precision_recall_curve(best_correct, best_scores)``, which is exactly what VPR-Bench
+        (``performance_comparison.py``: ``compute_precision_recall``/``compute_auc_PR``) and
+        CALC (``TrainAndTest/testNet.py``) run on the best match per query. At the loosest
+        threshold every query is accepted, recall is 1 and precision is the fraction of correct
+        matches (= recall@1), which is "precision at 100% recall" in those papers.
+    ``"has_match"``
+        ``FN = rejected & has_match`` (a rejected query that has a true match in the database,
+        whether its best match was right or wrong); ``recall = TP / (TP + FN)``. A wrong
+        accepted match counts as FP only. At the loosest threshold FN = 0 so recall is 1 (when
+        any match is correct) and precision is again recall@1. Recall is never above the
+        ``"vpr_bench"`` recall at the same threshold (its denominator is at least
+        ``n_correct``), so AUC-PR comes out lower.
+    ``"vpr_tutorial"``
+        VPR_Tutorial ``createPR(matching='single')``: ``recall = TP / n_has_match`` (queries
+        with at least one true match). Its maximum recall is ``n_correct / n_has_match``, the
+        fraction of correct matches among queries that can be matched; it reaches 1 only when
+        every such query is matched correctly.
+
+    Zero denominators give 0 (e.g. recall when no query has a correct match); scikit-learn
+    instead sets recall to 1 there, with a warning.
+
+    The curve starts at ``(recall 0, precision 1)`` before any query is accepted (its threshold is
+    stored as ``+inf``), as VPR_Tutorial's ``createPR`` (``R = [0]; P = [1]``) and scikit-learn
+    (last point ``precision 1, recall 0``) both do. Unlike VPR_Tutorial, which samples 100
+    thresholds evenly between the largest and smallest score, every distinct score is used, so
+    the curve is exact (evaluate the tutorial's sampling with :func:`pr_counts`).
+
+Scalar metrics (the six in :meth:`Evaluation.scalars`)
+    ``recall_at_1``: fraction of ALL queries whose best match is correct ("fraction of correct
+    matches"; VPR-Bench's ``compute_accuracy``).
+    ``precision_at_full_recall``: precision at the loosest threshold (every query accepted),
+    i.e. ``n_correct / n_queries`` — identical to ``recall_at_1`` by construction, whatever the
+    convention. In ``"vpr_bench"`` and ``"has_match"`` recall is 1 there (it may reach 1 at a
+    stricter threshold already, with higher precision; the literature's "precision at 100%
+    recall" is this loosest point); in ``"vpr_tutorial"`` it is the point of maximum recall.
+    ``auc_pr``: trapezoidal area under the curve above, integrated over recall, start point
+    included: scikit-learn ``auc(recall, precision)`` (VPR-Bench ``compute_auc_PR``, CALC) and
+    ``np.trapz(P, R)`` in VPR_Tutorial's ``demo.py``. Not average precision (a step sum).
+    ``recall_at_100_precision``: the largest recall on the curve where precision is exactly 1
+    (no false positive accepted); the start point makes it 0 when the best-scored match is
+    wrong (VPR_Tutorial ``recallAt100precision``: ``R[P == 1].max()``).
+    ``recall_at_5``, ``recall_at_10`` (and any K in ``ks``): VPR_Tutorial ``recallAtK``: among
+    queries with at least one true match (the others are dropped), the fraction with a true
+    match among their top K. Unlike ``recall_at_1`` above it ignores queries without a match;
+    the two agree for K = 1 when every query has a match. With fewer than K database frames
+    K is clipped to the database size (as VPR_Tutorial's ``demo.py`` does).
+
+Degenerate inputs (no query with a true match, all scores equal, a single query) return
+well-defined numbers without division warnings; NaN or infinite best scores, bad shapes, and
+out-of-range indices raise ``ValueError`` with a one-line message.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, NamedTuple
+
+import numpy as np
+from jaxtyping import Bool, Float, Int
+
+__all__ = [
+    "PR_CONVENTIONS",
+    "Evaluation",
+    "correct_matches",
+    "evaluate",
+    "evaluate_top_k",
+    "has_true_match",
+    "pr_counts",
+    "pr_curve",
+    "top_k",
+]
+
+PRConvention = Literal["vpr_bench", "has_match", "vpr_tutorial"]
+PR_CONVENTIONS: tuple[str, ...] = ("vpr_bench", "has_match", "vpr_tutorial")
+DEFAULT_KS: tuple[int, ...] = (1, 5, 10)
+PRPoints = Float[np.ndarray, " n_points"]
+SCALAR_NAMES: tuple[str, ...] = (
+    "recall_at_1",
+    "precision_at_full_recall",
+    "auc_pr",
+    "recall_at_100_precision",
+    "recall_at_5",
+    "recall_at_10",
+)
+
+
+class Evaluation(NamedTuple):
+    """Metrics of one database/query pair; see the module docstring for every definition.
+
+    ``pr_precision``, ``pr_recall``, ``pr_thresholds`` (length n_distinct_scores + 1): the PR
+    curve from the strictest threshold to the loosest; index 0 is the start point (recall 0,
+    precision 1, threshold +inf), index i > 0 accepts queries with best score >= threshold i.
+    ``best_scores``, ``best_correct``, ``has_match``: per query (in input order).
+    ``recall_at_k``: recall@K for every K asked for (always including 1, 5 and 10).
+    """
+
+    recall_at_1: float
+    precision_at_full_recall: float
+    auc_pr: float
+    recall_at_100_precision: float
+    recall_at_5: float
+    recall_at_10: float
+    pr_precision: Float[np.ndarray, " n_points"]
+    pr_recall: Float[np.ndarray, " n_points"]
+    pr_thresholds: Float[np.ndarray, " n_points"]
+    best_scores: Float[np.ndarray, " nq"]
+    best_correct: Bool[np.ndarray, " nq"]
+    has_match: Bool[np.ndarray, " nq"]
+    recall_at_k: dict[int, float]
+    pr_convention: str
+
+    def scalars(self) -> dict[str, float]:
+        """The six scalar metrics, by name (the results.csv columns), as Python floats."""
+        return {name: float(getattr(self, name)) for name in SCALAR_NAMES}
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+def _check_convention(pr_convention: str) -> None:
+    if pr_convention not in PR_CONVENTIONS:
+        raise ValueError(
+            f"unknown pr_convention {pr_convention!r}: use one of {', '.join(PR_CONVENTIONS)}"
+        )
+
+
+def _check_tolerance(tolerance: int) -> int:
+    if isinstance(tolerance, bool) or not isinstance(tolerance, int | np.integer):
+        raise ValueError(f"tolerance must be a non-negative integer, got {tolerance!r}")
+    if tolerance < 0:
+        raise ValueError(f"tolerance must be a non-negative integer, got {tolerance}")
+    return int(tolerance)
+
+
+def _as_ids(ids: np.ndarray, name: str) -> np.ndarray:
+    arr = np.asarray(ids)
+    if arr.ndim != 1:
+        raise ValueError(f"{name} must be one-dimensional, got shape {arr.shape}")
+    if np.issubdtype(arr.dtype, np.integer):
+        return arr.astype(np.int64, copy=False)
+    if np.issubdtype(arr.dtype, np.floating) and np.all(np.isfinite(arr)):
+        if np.array_equal(arr, np.round(arr)):
+            return arr.astype(np.int64)
+    raise ValueError(f"{name} must hold integer frame ids, got dtype {arr.dtype}")
+
+
+def _as_bool(x: np.ndarray, name: str, n: int) -> np.ndarray:
+    arr = np.asarray(x)
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
+    if arr.dtype != np.bool_:
+        if not np.all((arr == 0) | (arr == 1)):
+            raise ValueError(f"{name} must be boolean (or 0/1)")
+        arr = arr.astype(bool)
+    return arr
+
+
+def _check_scores(scores: np.ndarray, name: str) -> np.ndarray:
+    arr = np.asarray(scores, dtype=np.float64)
+    if np.isnan(arr).any():
+        raise ValueError(f"{name} contains NaN: the descriptors or similarities are broken")
+    return arr
+
+
+# --------------------------------------------------------------------------- ground truth
+
+
+def has_true_match(
+    query_ids: Int[np.ndarray, " nq"], db_ids: Int[np.ndarray, " ndb"], tolerance: int
+) -> Bool[np.ndarray, " nq"]:
+    """Whether some database frame lies within ``tolerance`` of each query's frame id.
+
+    ``db_ids`` may be in any order; a sorted copy is searched (O((Nq + Ndb) log Ndb)).
+    """
+    q = _as_ids(query_ids, "query_ids")
+    d = np.sort(_as_ids(db_ids, "db_ids"))
+    tol = _check_tolerance(tolerance)
+    lo = np.searchsorted(d, q - tol, side="left")
+    hi = np.searchsorted(d, q + tol, side="right")
+    return hi > lo
+
+
+def correct_matches(
+    indices: Int[np.ndarray, "nq k"],
+    query_ids: Int[np.ndarray, " nq"],
+    db_ids: Int[np.ndarray, " ndb"],
+    tolerance: int,
+) -> Bool[np.ndarray, "nq k"]:
+    """Whether each retrieved database index (into ``db_ids``) is a true match of its query."""
+    q = _as_ids(query_ids, "query_ids")
+    d = _as_ids(db_ids, "db_ids")
+    tol = _check_tolerance(tolerance)
+    idx = np.asarray(indices)
+    if idx.ndim != 2 or idx.shape[0] != q.shape[0]:
+        raise ValueError(f"indices must have shape ({q.shape[0]}, K), got {idx.shape}")
+    if not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"indices must be integers, got dtype {idx.dtype}")
+    if idx.size and (idx.min() < 0 or idx.max() >= d.shape[0]):
+        raise ValueError(
+            f"indices must lie in [0, {d.shape[0]}) (positions in db_ids), "
+            f"got [{idx.min()}, {idx.max()}]"
+        )
+    return np.abs(d[idx] - q[:, None]) <= tol
+
+
+# ------------------------------------------------------------------------------- PR curve
+
+
+def _accepted_counts(
+    scores: np.ndarray, correct: np.ndarray, has_match: np.ndarray, n_accepted: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """TP, FP and accepted-with-a-match counts when the ``n_accepted`` best scores are accepted.
+
+    ``scores`` etc. must already be sorted by score, highest first.
+    """
+    zero = np.zeros(1, dtype=np.int64)
+    cum_tp = np.concatenate([zero, np.cumsum(correct, dtype=np.int64)])
+    cum_match = np.concatenate([zero, np.cumsum(has_match, dtype=np.int64)])
+    tp = cum_tp[n_accepted]
+    fp = n_accepted - tp
+    acc_match = cum_match[n_accepted]
+    return tp, fp, acc_match
+
+
+def _recall(
+    tp: np.ndarray,
+    acc_match: np.ndarray,
+    n_correct: int,
+    n_has_match: int,
+    pr_convention: str,
+) -> np.ndarray:
+    if pr_convention == "vpr_bench":
+        denom = np.full(tp.shape, n_correct, dtype=np.int64)
+    elif pr_convention == "has_match":
+        denom = tp + (n_has_match - acc_match)
+    else:  # vpr_tutorial
+        denom = np.full(tp.shape, n_has_match, dtype=np.int64)
+    return np.divide(tp, denom, out=np.zeros(tp.shape, dtype=np.float64), where=denom > 0)
+
+
+def _sorted_inputs(
+    best_scores: np.ndarray, best_correct: np.ndarray, has_match: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    scores = _check_scores(best_scores, "best_scores")
+    if scores.ndim != 1 or scores.shape[0] == 0:
+        raise ValueError(f"best_scores must be a non-empty 1-D array, got shape {scores.shape}")
+    if not np.all(np.isfinite(scores)):
+        raise ValueError("best_scores must be finite: a query's best match has an infinite score")
+    n = scores.shape[0]
+    correct = _as_bool(best_correct, "best_correct", n)
+    match = _as_bool(has_match, "has_match", n)
+    if np.any(correct & ~match):
+        raise ValueError("best_correct is True for a query whose has_match is False")
+    order = np.argsort(-scores, kind="stable")
+    return scores, scores[order], correct[order], match[order]
+
+
+def pr_curve(
+    best_scores: Float[np.ndarray, " nq"],
+    best_correct: Bool[np.ndarray, " nq"],
+    has_match: Bool[np.ndarray, " nq"],
+    *,
+    pr_convention: PRConvention = "vpr_bench",
+) -> tuple[PRPoints, PRPoints, PRPoints]:
+    """Single-best-match PR curve ``(precision, recall, thresholds)``, strictest first.
+
+    Point 0 is the start (precision 1, recall 0, threshold +inf); point i > 0 accepts every
+    query with ``score >= thresholds[i]``, the distinct best scores in decreasing order.
+    """
+    _check_convention(pr_convention)
+    _, s, c, m = _sorted_inputs(best_scores, best_correct, has_match)
+    # the last position of each run of equal scores: ties enter together
+    last = np.flatnonzero(np.append(s[1:] != s[:-1], True))
+    n_accepted = last + 1
+    tp, fp, acc_match = _accepted_counts(s, c, m, n_accepted)
+    precision = tp / (tp + fp)  # at least one query is accepted at every threshold
+    recall = _recall(tp, acc_match, int(c.sum()), int(m.sum()), pr_convention)
+    return (
+        np.concatenate([[1.0], precision]),
+        np.concatenate([[0.0], recall]),
+        np.concatenate([[np.inf], s[last]]),
+    )
+
+
+def pr_counts(
+    best_scores: Float[np.ndarray, " nq"],
+    best_correct: Bool[np.ndarray, " nq"],
+    has_match: Bool[np.ndarray, " nq"],
+    thresholds: Float[np.ndarray, " n_thresholds"],
+    *,
+    pr_convention: PRConvention = "vpr_bench",
+) -> tuple[
+    Int[np.ndarray, " n_thresholds"],
+    Int[np.ndarray, " n_thresholds"],
+    Int[np.ndarray, " n_thresholds"],
+    Int[np.ndarray, " n_thresholds"],
+]:
+    """``(tp, fp, tn, fn)`` at the given thresholds; a query is positive iff ``score >= t``.
+
+    Made for TensorBoard's ``add_pr_curve_raw`` (map cosine scores to [0, 1] first, and pass
+    the same map of the scores here), so that ``tp / (tp + fp)`` and ``tp / (tp + fn)``
+    reproduce the chosen convention's precision and recall (0 where a denominator is 0;
+    precision with nothing accepted is left to the caller: VPR_Tutorial and this module's
+    curve use 1 there).
+
+    - ``"vpr_bench"``: fn = rejected & correct, tn = rejected & ~correct (sum = Nq).
+    - ``"has_match"``: fn = rejected & has_match, tn = rejected & ~has_match (sum = Nq).
+    - ``"vpr_tutorial"``: fn = has_match & ~(accepted & correct), tn = rejected & ~has_match,
+      so tp + fn = n_has_match; a wrong accepted match of a query with a true match counts as
+      both FP and FN, and the four counts sum to Nq plus that number.
+    """
+    _check_convention(pr_convention)
+    _, s, c, m = _sorted_inputs(best_scores, best_correct, has_match)
+    t = _check_scores(thresholds, "thresholds")
+    if t.ndim != 1:
+        raise ValueError(f"thresholds must be one-dimensional, got shape {t.shape}")
+    n = s.shape[0]
+    ascending = s[::-1]
+    n_accepted = n - np.searchsorted(ascending, t, side="left")
+    tp, fp, acc_match = _accepted_counts(s, c, m, n_accepted)
+    n_correct = int(c.sum())
+    n_has_match = int(m.sum())
+    rejected = n - n_accepted
+    rej_match = n_has_match - acc_match
+    if pr_convention == "vpr_bench":
+        fn = n_correct - tp
+        tn = rejected - fn
+    elif pr_convention == "has_match":
+        fn = rej_match
+        tn = rejected - fn
+    else:
+        fn = n_has_match - tp
+        tn = rejected - rej_match
+    return tp, fp, tn, fn
+
+
+# -------------------------------------------------------------------------------- top-K
+
+
+def top_k(
+    similarity: Float[np.ndarray, "nq ndb"], k: int, *, block_rows: int | None = None
+) -> tuple[Float[np.ndarray, "nq k"], Int[np.ndarray, "nq k"]]:
+    """The ``k`` highest similarities per row, best first; ties go to the lowest index.
+
+    ``k`` is clipped to the number of columns. Rows are processed in blocks so the temporary
+    arrays stay near a few million elements whatever the matrix size.
+    """
+    sim = np.asarray(similarity)  # kept in its own dtype: no float64 copy of a big matrix
+    if not (np.issubdtype(sim.dtype, np.floating) or np.issubdtype(sim.dtype, np.integer)):
+        raise ValueError(f"similarity must be a real-valued array, got dtype {sim.dtype}")
+    if np.issubdtype(sim.dtype, np.floating) and np.isnan(sim).any():
+        raise ValueError("similarity contains NaN: the descriptors or similarities are broken")
+    if sim.ndim != 2 or sim.shape[0] == 0 or sim.shape[1] == 0:
+        raise ValueError(f"similarity must be a non-empty 2-D array, got shape {sim.shape}")
+    if k < 1:
+        raise ValueError(f"k must be >= 1, got {k}")
+    nq, ndb = sim.shape
+    k = min(int(k), ndb)
+    if block_rows is None:
+        block_rows = max(1, 4_000_000 // ndb)
+    out_s = np.empty((nq, k), dtype=np.float64)
+    out_i = np.empty((nq, k), dtype=np.int64)
+    for start in range(0, nq, block_rows):
+        blk = sim[start : start + block_rows]
+        kth = np.partition(blk, ndb - k, axis=1)[:, ndb - k]  # k-th largest per row
+        rows, cols = np.nonzero(blk >= kth[:, None])  # >= k candidates per row, ties kept
+        vals = blk[rows, cols].astype(np.float64)  # exact for float32/float64 scores
+        order = np.lexsort((cols, -vals, rows))  # by row, then score desc, then index asc
+        rows, cols, vals = rows[order], cols[order], vals[order]
+        first = np.searchsorted(rows, np.arange(blk.shape[0]), side="left")
+        take = first[:, None] + np.arange(k)[None, :]
+        out_s[start : start + blk.shape[0]] = vals[take]
+        out_i[start : start + blk.shape[0]] = cols[take]
+    return out_s, out_i
+
+
+# ---------------------------------------------------------------------------- evaluation
+
+
+def evaluate_top_k(
+    top_scores: Float[np.ndarray, "nq k"],
+    top_indices: Int[np.ndarray, "nq k"],
+    query_ids: Int[np.ndarray, " nq"],
+    db_ids: Int[np.ndarray, " ndb"],
+    tolerance: int,
+    *,
+    pr_convention: PRConvention = "vpr_bench",
+    ks: tuple[int, ...] = DEFAULT_KS,
+) -> Evaluation:
+    """All metrics from each query's top-K matches (see the module docstring).
+
+    ``top_scores[i]`` must be sorted best first and ``top_indices[i]`` index ``db_ids``.
+    Recall@K for every K in ``ks`` (1, 5 and 10 are always added) needs ``K >= min(k, Ndb)``
+    columns; with K >= Ndb, larger k are clipped to Ndb. Cost O(Nq K + (Nq + Ndb) log Ndb).
+    """
+    _check_convention(pr_convention)
+    tol = _check_tolerance(tolerance)
+    q = _as_ids(query_ids, "query_ids")
+    d = _as_ids(db_ids, "db_ids")
+    if q.shape[0] == 0:
+        raise ValueError("no queries to evaluate: query_ids is empty")
+    if d.shape[0] == 0:
+        raise ValueError("no database frames to match against: db_ids is empty")
+    scores = _check_scores(top_scores, "top_scores")
+    idx = np.asarray(top_indices)
+    if scores.ndim != 2 or scores.shape[0] != q.shape[0] or scores.shape[1] == 0:
+        raise ValueError(
+            f"top_scores must have shape ({q.shape[0]}, K>=1) to match query_ids, "
+            f"got {scores.shape}"
+        )
+    if idx.shape != scores.shape:
+        raise ValueError(
+            f"top_indices shape {idx.shape} differs from top_scores shape {scores.shape}"
+        )
+    if not np.all(scores[:, 1:] <= scores[:, :-1]):
+        raise ValueError("top_scores rows must be sorted best first (non-increasing)")
+    n_cols = scores.shape[1]
+    n_db = d.shape[0]
+    all_ks = sorted({1, 5, 10, *(int(k) for k in ks)})
+    if all_ks[0] < 1:
+        raise ValueError(f"every K in ks must be >= 1, got {tuple(ks)}")
+    need = min(all_ks[-1], n_db)
+    if n_cols < need:
+        raise ValueError(
+            f"top-K holds {n_cols} matches per query but recall@{all_ks[-1]} needs {need}: "
+            f"keep the top {need} (or more) per query"
+        )
+
+    correct = correct_matches(idx, q, d, tol)
+    match = has_true_match(q, d, tol)
+    best_scores = scores[:, 0]
+    best_correct = correct[:, 0]
+
+    precision, recall, thresholds = pr_curve(
+        best_scores, best_correct, match, pr_convention=pr_convention
+    )
+    n_q = q.shape[0]
+    recall_at_1 = float(best_correct.sum() / n_q)
+    precision_at_full_recall = float(precision[-1])
+    auc_pr = float(np.sum(np.diff(recall) * (precision[1:] + precision[:-1]) / 2.0))
+    recall_at_100p = float(recall[precision == 1.0].max())
+
+    n_has_match = int(match.sum())
+    recall_at_k: dict[int, float] = {}
+    hit_by_rank = np.logical_or.accumulate(correct, axis=1)[match]  # drop unmatched queries
+    for k in all_ks:
+        kk = min(k, n_db)
+        recall_at_k[k] = float(hit_by_rank[:, kk - 1].sum() / n_has_match) if n_has_match else 0.0
+
+    return Evaluation(
+        recall_at_1=recall_at_1,
+        precision_at_full_recall=precision_at_full_recall,
+        auc_pr=auc_pr,
+        recall_at_100_precision=recall_at_100p,
+        recall_at_5=recall_at_k[5],
+        recall_at_10=recall_at_k[10],
+        pr_precision=precision,
+        pr_recall=recall,
+        pr_thresholds=thresholds,
+        best_scores=best_scores.copy(),
+        best_correct=best_correct.copy(),
+        has_match=match,
+        recall_at_k={k: recall_at_k[k] for k in all_ks},
+        pr_convention=pr_convention,
+    )
+
+
+def evaluate(
+    similarity: Float[np.ndarray, "nq ndb"],
+    query_ids: Int[np.ndarray, " nq"],
+    db_ids: Int[np.ndarray, " ndb"],
+    tolerance: int,
+    *,
+    pr_convention: PRConvention = "vpr_bench",
+    ks: tuple[int, ...] = DEFAULT_KS,
+) -> Evaluation:
+    """All metrics from a full similarity matrix, higher = more similar.
+
+    ``similarity`` is (n_queries, n_db): row i holds query i against every database frame.
+    This is the TRANSPOSE of VPR_Tutorial's ``S`` (database x queries). Takes the top
+    ``max(ks + (10,))`` per query (ties to the lowest database index, as ``np.argmax`` picks the
+    best match) and calls :func:`evaluate_top_k`.
+    """
+    sim = np.asarray(similarity)
+    n_q = np.shape(query_ids)[0] if np.ndim(query_ids) == 1 else -1
+    n_db = np.shape(db_ids)[0] if np.ndim(db_ids) == 1 else -1
+    if sim.ndim != 2 or sim.shape != (n_q, n_db):
+        raise ValueError(
+            f"similarity must have shape (n_queries, n_db) = ({n_q}, {n_db}), got {sim.shape}"
+            " (rows are queries: the transpose of VPR_Tutorial's S)"
+        )
+    k = max({1, 5, 10, *(int(k) for k in ks)})
+    top_s, top_i = top_k(sim, k)
+    return evaluate_top_k(
+        top_s, top_i, query_ids, db_ids, tolerance, pr_convention=pr_convention, ks=ks
+    )
