@@ -105,9 +105,8 @@ def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
                         "logdir=PATH to a folder you can write") from None
     saved, results = logdir / "config.yaml", logdir / "results.csv"
     if saved.exists():
-        before = OmegaConf.to_container(OmegaConf.load(saved))
-        before = {k: v for k, v in before.items() if k in identity(cfg)}
-        now = OmegaConf.to_container(OmegaConf.create(identity(cfg)))
+        now = identity(cfg)
+        before = identity(OmegaConf.to_container(OmegaConf.load(saved)))
         differ = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
         if differ:
             raise UserError(f"logdir {logdir} holds results of a different configuration "

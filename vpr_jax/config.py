@@ -201,6 +201,19 @@ def to_dict(cfg: SweepConfig) -> dict:
     return dataclasses.asdict(cfg)
 
 
-def identity(cfg: SweepConfig) -> dict:
-    """The part of a config that determines the numbers of every cell."""
-    return {k: v for k, v in to_dict(cfg).items() if k not in EXTENDABLE_KEYS}
+def _plain(value: Any) -> Any:
+    """Tuples to lists, recursively: the form a config takes after a YAML round trip."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def identity(cfg: SweepConfig | dict) -> dict:
+    """The part of a config (or of its saved YAML) that determines the numbers of every cell,
+    as plain YAML data."""
+    out = _plain(to_dict(cfg) if isinstance(cfg, SweepConfig) else cfg)
+    out = {k: v for k, v in out.items() if k not in EXTENDABLE_KEYS}
+    out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
+    return out

@@ -29,7 +29,7 @@ class PCAState(NamedTuple):
     explained_variance: Float[Array, " c"]  # eigenvalues of the sample covariance (ddof=1)
 
 
-def flatten(images: Float[Array, "n *pixels"]) -> Float[Array, "n d"]:
+def flatten(images: Float[Array, "n ..."]) -> Float[Array, "n d"]:
     return jnp.reshape(images, (images.shape[0], -1))
 
 
@@ -73,7 +73,7 @@ def _fit(x: Float[Array, "n d"], n_components: int, solver: str) -> PCAState:
 
 
 def fit_pca(
-    train: Float[Array, "n *pixels"],
+    train: Float[Array, "n ..."],
     n_components: int | None = None,
     solver: Solver = "auto",
 ) -> PCAState:
@@ -93,7 +93,7 @@ def fit_pca(
 
 
 @jax.jit
-def project(state: PCAState, images: Float[Array, "n *pixels"]) -> Float[Array, "n c"]:
+def project(state: PCAState, images: Float[Array, "n ..."]) -> Float[Array, "n c"]:
     """Coefficients of every component, centred with the TRAINING mean."""
     return (flatten(images) - state.mean) @ state.components.T
 
@@ -101,7 +101,7 @@ def project(state: PCAState, images: Float[Array, "n *pixels"]) -> Float[Array, 
 @functools.partial(jax.jit, static_argnames=("output",))
 def encode(
     state: PCAState,
-    images: Float[Array, "n *pixels"],
+    images: Float[Array, "n ..."],
     removed_pcs: int | Int[Array, ""],
     output: Output = "coefficients",
 ) -> Float[Array, "n e"]:

@@ -1,0 +1,133 @@
+"""The runner end to end: a subprocess sweep, read back with TensorBoard's own reader."""
+
+import csv
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensorboard.plugins.hparams import plugin_data_pb2
+from tensorboard.util import tensor_util
+
+from tests.conftest import SMALL, run_cli
+from vpr_jax.results import COLUMNS, read_results
+
+PAIRS = {"summer-spring", "summer-fall", "spring-fall"}
+
+
+def _accumulator(path):
+    ea = EventAccumulator(str(path), size_guidance={"scalars": 0, "tensors": 0, "images": 0})
+    ea.Reload()
+    return ea
+
+
+def test_results_table_has_one_row_per_cell(small_sweep):
+    logdir, proc = small_sweep
+    with open(logdir / "results.csv") as f:
+        header = next(csv.reader(f))
+    assert tuple(header) == COLUMNS
+    rows = read_results(logdir / "results.csv")
+    cells = {(r["season_pair"], r["method"], r["removed_pcs"]) for r in rows}
+    assert len(rows) == len(cells) == 3 * (1 + 3)
+    assert {r["season_pair"] for r in rows} == PAIRS
+    for r in rows:
+        assert r["db_season"] + "-" + r["query_season"] == r["season_pair"]
+        assert r["n_train"] == 600 and r["n_test"] == 120 and r["tolerance"] == 2
+        for key in ("recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_10"):
+            assert 0.0 <= r[key] <= 1.0
+        # Every query has a true match, so the PR curve reaches full recall at precision R@1.
+        assert r["precision_at_full_recall"] == pytest.approx(r["recall_at_1"])
+        assert r["recall_at_1"] <= r["recall_at_5"] <= r["recall_at_10"]
+    # One plain line per finished cell, whatever the terminal.
+    assert proc.stdout.count("recall@1") == len(rows)
+
+
+def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
+    logdir, _ = small_sweep
+    rows = read_results(logdir / "results.csv")
+    for row in rows:
+        ea = _accumulator(logdir / row["run"])
+        tags = ea.Tags()
+        for key in ("recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_5"):
+            (event,) = ea.Scalars(f"metrics/{key}")
+            assert event.value == pytest.approx(row[key], abs=1e-6)
+        (fit,) = ea.Scalars("timing/fit_seconds")
+        assert fit.value == pytest.approx(row["fit_seconds"], rel=1e-5)
+        (pr,) = ea.Tensors("pr_curve")
+        data = tensor_util.make_ndarray(pr.tensor_proto)
+        assert data.shape == (6, 201)
+        tp, fp, tn, fn = data[:4, 0]  # threshold 0 accepts every query
+        assert tp / (tp + fp) == pytest.approx(row["recall_at_1"], abs=1e-6)
+        assert "matches/query_best_true" in tags["images"]
+        has_basis = "basis/removed_components" in tags["images"]
+        assert has_basis == (row["method"] == "pca" and row["removed_pcs"] > 0)
+        content = ea.PluginTagToContent("hparams")
+        info = plugin_data_pb2.HParamsPluginData.FromString(
+            content["_hparams_/session_start_info"]).session_start_info
+        assert info.hparams["season_pair"].string_value == row["season_pair"]
+        assert info.hparams["removed_pcs"].number_value == row["removed_pcs"]
+    root = _accumulator(logdir)
+    experiment = plugin_data_pb2.HParamsPluginData.FromString(
+        root.PluginTagToContent("hparams")["_hparams_/experiment"]).experiment
+    assert {h.name for h in experiment.hparam_infos} == {"season_pair", "method", "removed_pcs"}
+    assert "metrics/recall_at_1" in {m.name.tag for m in experiment.metric_infos}
+
+
+def test_summaries_and_figures_are_written(small_sweep):
+    logdir, proc = small_sweep
+    table = (logdir / "results.md").read_text()
+    assert all(pair in table for pair in PAIRS)
+    for name in ("pr_curves.png", "correct_matches.png"):
+        image = cv2.imread(str(logdir / "figures" / name))
+        assert image is not None and image.shape[0] > 100
+    assert "recall@1" in (logdir / "sweep.log").read_text()
+    assert "tensorboard --logdir" in proc.stdout
+
+
+def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_path):
+    finished, _ = small_sweep
+    logdir = tmp_path / "runs"
+    shutil.copytree(finished, logdir)
+    rows = read_results(logdir / "results.csv")
+    # Simulate a crash after two PCA runs were written but before their rows were.
+    lost = [r for r in rows if r["season_pair"] == "spring-fall" and r["method"] == "pca"][:2]
+    kept = [r for r in rows if r not in lost]
+    lines = (logdir / "results.csv").read_text().splitlines()
+    keep_runs = {r["run"] for r in kept}
+    (logdir / "results.csv").write_text(
+        "\n".join([lines[0]] + [ln for ln in lines[1:] if ln.split(",")[-1] in keep_runs]) + "\n")
+    proc = run_cli(*SMALL, f"logdir={logdir}")
+    assert proc.returncode == 0, proc.stderr
+    assert f"resuming: {len(kept)} of {len(rows)}" in proc.stdout
+    assert proc.stdout.count("recall@1") == len(lost)
+    again = read_results(logdir / "results.csv")
+    assert len(again) == len(rows)
+    metric = ("recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_10")
+    by_run = {r["run"]: r for r in again}
+    for r in rows:  # recomputed cells give the same numbers: deterministic
+        assert all(by_run[r["run"]][m] == pytest.approx(r[m], abs=1e-6) for m in metric)
+    # The recomputed runs hold one event file each: the stale ones were replaced.
+    for r in lost:
+        assert len(list((logdir / r["run"]).glob("events.out.tfevents.*"))) == 1
+    # A finished sweep run again computes nothing.
+    proc = run_cli(*SMALL, f"logdir={logdir}")
+    assert proc.returncode == 0 and proc.stdout.count("recall@1") == 0
+
+
+def test_named_pairs_select_database_and_query_seasons(tmp_path):
+    proc = run_cli(*SMALL, "season_pairs=fall-summer", "methods=raw", f"logdir={tmp_path}")
+    assert proc.returncode == 0, proc.stderr
+    (row,) = read_results(tmp_path / "results.csv")
+    assert (row["db_season"], row["query_season"]) == ("fall", "summer")
+
+
+def test_pixel_output_gives_the_same_metrics(small_sweep, tmp_path):
+    logdir, _ = small_sweep
+    proc = run_cli(*SMALL, "season_pairs=summer-fall", "methods=pca", "pca.output=pixels",
+                   f"logdir={tmp_path}")
+    assert proc.returncode == 0, proc.stderr
+    coeff = {r["run"]: r for r in read_results(logdir / "results.csv")}
+    for r in read_results(tmp_path / "results.csv"):
+        assert r["recall_at_1"] == pytest.approx(coeff[r["run"]]["recall_at_1"], abs=0.01)
+        assert np.isfinite(r["encode_ms_per_image"])
