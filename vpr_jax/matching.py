@@ -37,6 +37,25 @@ def cosine_similarity(
     return l2_normalize(query_desc) @ l2_normalize(db_desc).T
 
 
+def _suffix_scores(query_desc, db_desc, starts):
+    """Yield (start index, cosine on features [start:]) for every start, last start first.
+
+    The dot product over a suffix is the sum of the segment products it covers, so walking
+    the starts backwards adds one thin segment product at a time: every start together costs
+    one full product plus one elementwise pass each.
+    """
+    bounds = (*starts, query_desc.shape[1])
+    dot = q_sq = db_sq = 0.0
+    for i in reversed(range(len(starts))):
+        q, d = query_desc[:, bounds[i] : bounds[i + 1]], db_desc[:, bounds[i] : bounds[i + 1]]
+        dot = dot + q @ d.T
+        q_sq = q_sq + jnp.sum(q * q, axis=1)
+        db_sq = db_sq + jnp.sum(d * d, axis=1)
+        inv_q = 1.0 / jnp.maximum(jnp.sqrt(q_sq), _EPS)
+        inv_db = 1.0 / jnp.maximum(jnp.sqrt(db_sq), _EPS)
+        yield i, dot * inv_q[:, None] * inv_db[None, :]
+
+
 def suffix_cosine(
     query_desc: Float[Array, "nq d"], db_desc: Float[Array, "ndb d"], starts: tuple[int, ...]
 ) -> Float[Array, "s nq ndb"]:
@@ -45,18 +64,8 @@ def suffix_cosine(
     ``starts`` must be strictly increasing and each < d. Equivalent to
     ``stack([cosine_similarity(q[:, s:], db[:, s:]) for s in starts])``.
     """
-    bounds = (*starts, query_desc.shape[1])
-    dots, q_sq, db_sq = [], [], []
-    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-        q, d = query_desc[:, lo:hi], db_desc[:, lo:hi]
-        dots.append(q @ d.T)
-        q_sq.append(jnp.sum(q * q, axis=1))
-        db_sq.append(jnp.sum(d * d, axis=1))
-    # Reverse cumulative sums: the suffix from starts[i] covers segments i, i+1, ...
-    dot = jnp.cumsum(jnp.stack(dots)[::-1], axis=0)[::-1]
-    qn = jnp.sqrt(jnp.cumsum(jnp.stack(q_sq)[::-1], axis=0)[::-1])
-    dn = jnp.sqrt(jnp.cumsum(jnp.stack(db_sq)[::-1], axis=0)[::-1])
-    return dot / jnp.maximum(qn[:, :, None] * dn[:, None, :], _EPS)
+    scores = dict(_suffix_scores(query_desc, db_desc, starts))
+    return jnp.stack([scores[i] for i in range(len(starts))])
 
 
 @functools.partial(jax.jit, static_argnames=("k", "block_size", "starts"))
@@ -77,15 +86,19 @@ def _top_k_blocks(
     def step(carry, block_and_offset):
         best_scores, best_idx = carry
         block, offset = block_and_offset
-        idx = offset + jnp.arange(block_size, dtype=jnp.int32)
-        scores = suffix_cosine(query_desc, block, starts)
-        scores = jnp.where(idx < n_db, scores, -jnp.inf)  # padding never wins
-        scores = jnp.concatenate([best_scores, scores], axis=-1)
-        idx = jnp.concatenate([best_idx, jnp.broadcast_to(idx, (n_starts, nq, block_size))], -1)
-        # Earlier blocks come first in the concatenation and top_k is stable, so ties keep
-        # the lowest database index, as argmax would.
-        top_scores, pos = jax.lax.top_k(scores, k)
-        return (top_scores, jnp.take_along_axis(idx, pos, axis=-1)), None
+        valid = offset + jnp.arange(block_size) < n_db
+        block_scores, block_idx = [None] * n_starts, [None] * n_starts
+        for i, scores in _suffix_scores(query_desc, block, starts):
+            # Top-K of the block for this start right away: the (nq, block) scores are
+            # never stacked over starts, which keeps memory traffic to one pass per start.
+            block_scores[i], pos = jax.lax.top_k(jnp.where(valid, scores, -jnp.inf), k)
+            block_idx[i] = offset + pos.astype(jnp.int32)
+        # Merge two K-lists. Earlier blocks come first and top_k is stable, so ties keep the
+        # lowest database index, as argmax would.
+        merged_scores = jnp.concatenate([best_scores, jnp.stack(block_scores)], axis=-1)
+        merged_idx = jnp.concatenate([best_idx, jnp.stack(block_idx)], axis=-1)
+        top_scores, pos = jax.lax.top_k(merged_scores, k)
+        return (top_scores, jnp.take_along_axis(merged_idx, pos, axis=-1)), None
 
     offsets = jnp.arange(db_blocks.shape[0], dtype=jnp.int32) * block_size
     (scores, idx), _ = jax.lax.scan(step, init, (db_blocks, offsets))
