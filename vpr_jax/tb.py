@@ -26,6 +26,9 @@ def write_experiment_config(logdir: Path, domains: dict[str, list], metric_tags:
     hparams = [hp.HParam(name, hp.Discrete(sorted(set(values))))
                for name, values in domains.items()]
     metrics = [hp.Metric(tag) for tag in metric_tags]
+    # A resumed or extended sweep replaces the experiment instead of adding a second one.
+    for old in Path(logdir).glob("events.out.tfevents.*.hparams"):
+        old.unlink()
     with SummaryWriter(str(logdir), filename_suffix=".hparams") as writer:
         writer.file_writer.add_summary(_to_tbx(hp.hparams_config_pb(hparams, metrics)))
 

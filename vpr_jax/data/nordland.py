@@ -90,6 +90,21 @@ def load_nordland(
     )
 
 
+def _read_aligned(files: dict, source: str, root, frame_list, frame_step: int, log: Log, *,
+                  resize: bool) -> Route:
+    """Align seasons' indexed files ({season: {frame id: path}}), then read only the kept."""
+    ids = _align(
+        {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()}, frame_list, frame_step, log
+    )
+    images, colour = {}, {}
+    for season, by_id in files.items():
+        paths = [by_id[int(i)] for i in ids]
+        images[season], colour[season] = _read_images(paths, season, resize=resize)
+    _note_colour(colour, log)
+    log(_summary(source, ids, tuple(files), root))
+    return Route(ids, images)
+
+
 def read_image_release(
     root: PathLike,
     seasons: Sequence[str],
@@ -118,16 +133,8 @@ def read_image_release(
                 "set data.source=folders"
             ),
         )
-    ids = _align(
-        {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()}, frame_list, frame_step, log
-    )
-    images, colour = {}, {}
-    for season in seasons:
-        paths = [files[season][int(i)] for i in ids]
-        images[season], colour[season] = _read_images(paths, season, resize=False)
-    _note_colour(colour, log)
-    log(_summary("nordland_images", ids, seasons, root))
-    return Route(ids, images)
+    return _read_aligned(files, "nordland_images", root, frame_list, frame_step, log,
+                         resize=False)
 
 
 def read_folders(
@@ -155,16 +162,7 @@ def read_folders(
             match=partial(_folder_id, folder),
             empty_hint="put the frames there as .png, .jpg or .jpeg files numbered in their names",
         )
-    ids = _align(
-        {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()}, frame_list, frame_step, log
-    )
-    images, colour = {}, {}
-    for season in seasons:
-        paths = [files[season][int(i)] for i in ids]
-        images[season], colour[season] = _read_images(paths, season, resize=True)
-    _note_colour(colour, log)
-    log(_summary("folders", ids, seasons, root))
-    return Route(ids, images)
+    return _read_aligned(files, "folders", root, frame_list, frame_step, log, resize=True)
 
 
 def read_videos(
