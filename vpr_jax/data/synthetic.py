@@ -13,19 +13,26 @@ A train's forward camera moves along one route, one place per frame, rendered at
 Everything the world contains depends only on ``seed``; the season and the traversal only
 change appearance, the way they do on the Nordland line:
 
-- sky and clouds differ per traversal (clear summer sky, overcast fall and winter);
-- exposure, illumination (sun side, ground brightness, gradients) drift slowly along the
-  route, differently in every traversal: global, low-frequency patterns;
+- sky and clouds differ per traversal (clear summer sky, overcast fall and winter; in
+  winter the overcast sky is darker than the snow);
+- exposure, illumination (sun side, ground and sky brightness, gradients) drift slowly
+  along the route: global, low-frequency patterns, mostly shared by the rides of one season
+  (same time of year and of day), a little different on every ride; a partial
+  auto-exposure pulls every frame towards one mean brightness;
 - vegetation: summer dark uniform green; fall patchy orange/yellow/brown (in grayscale
   brighter and mottled); spring fresh light green, sparse foliage, brown fields, snow on
   the mountains; winter snow on ground, roofs and mountains, bare birches, dark spruces;
-- the camera sits a pixel or two to the side (varying slowly), and there is sensor noise.
+- fields change with the season in ways that do not stay the same from place to place
+  (green crops, harvested stubble, ploughed soil, lingering snow in hollows);
+- per ride, the camera sits up to a pixel or so to the side and the frames are not
+  perfectly synchronised (both varying slowly), and there is sensor noise.
 
 Rendering is vectorised numpy (plus ``cv2.remap`` for texture look-ups) over blocks of
 frames; every pixel of a frame depends only on (seed, season, traversal, frame id), so a
-subset of frames, in any order, gives exactly the rows of rendering them all. Only
-elementwise IEEE arithmetic touches per-frame values (no transcendental functions), so the
-result does not depend on how frames are batched.
+subset of frames, in any order, gives exactly the rows of rendering them all. Per-frame
+values go through elementwise IEEE arithmetic only (no transcendental functions, whose SIMD
+and scalar paths may differ in the last bit) and per-row reductions, so the result does not
+depend on how frames are batched.
 """
 
 from __future__ import annotations
@@ -58,18 +65,33 @@ _WALL_D = 1.0 * (90.0 / 1.0) ** (np.arange(_WALL_J) / (_WALL_J - 1))
 
 _U = np.arange(_W, dtype=np.float64) + 0.5  # pixel-centre columns
 _Y = np.arange(_H, dtype=np.float64) + 0.5  # pixel-centre rows
-# Per-traversal drift along the route: amplitudes of slowly varying nuisances.
-_DRIFT = {
-    "jitter": 0.25,  # frames: imperfect synchronisation of the videos
-    "shift": 0.9,  # pixels: lateral camera offset
-    "pitch": 0.35,  # pixels: vertical camera offset
-    "light": 0.07,  # relative illumination of the ground and everything on it
-    "sky": 0.06,  # relative sky brightness
-    "gain": 0.05,  # relative exposure
-    "offset": 0.025,  # black level
-    "hgrad": 0.035,  # left-right brightness gradient (on top of the seasonal sun side)
-    "vgrad": 0.03,  # top-bottom brightness gradient
+# Slow drift along the route: amplitude of each nuisance, shared by every traversal of a
+# season (same time of year and of day: sun height, typical weather, camera settings) ...
+_SEASON_DRIFT = {
+    "light": 0.08,  # relative illumination of the ground and everything on it
+    "sky": 0.08,  # relative sky brightness
+    "gain": 0.08,  # relative exposure
+    "offset": 0.03,  # black level
+    "hgrad": 0.05,  # left-right brightness gradient (on top of the seasonal sun side)
+    "vgrad": 0.04,  # top-bottom brightness gradient
 }
+# ... and specific to one traversal (another ride in the same season).
+_TRAVERSAL_DRIFT = {
+    "jitter": 0.25,  # frames: imperfect synchronisation of the videos
+    "shift": 0.7,  # pixels: lateral camera offset
+    "pitch": 0.35,  # pixels: vertical camera offset
+    "light": 0.02,
+    "sky": 0.03,
+    "gain": 0.02,
+    "offset": 0.008,
+    "hgrad": 0.015,
+    "vgrad": 0.015,
+    "clouds": 0.15,  # cloud cover
+}
+_DRIFT_SCALE = {  # frames over which each nuisance changes
+    "jitter": 20.0, "shift": 90.0, "pitch": 70.0, "light": 35.0, "sky": 50.0, "gain": 45.0,
+    "offset": 30.0, "hgrad": 40.0, "vgrad": 40.0, "clouds": 60.0,
+}  # fmt: skip
 _AUTO_EXPOSURE, _AE_TARGET = 0.7, 0.45  # share of the way to the target mean brightness
 _NOISE = 0.018  # sensor noise per table (two tables add up)
 _BALLAST, _RAIL_X, _RAIL_W = 0.62, 0.36, 0.035  # ballast half-width, rail offset, half-width
@@ -182,29 +204,7 @@ class _World:
     def __init__(self, seed: int):
         self.seed = seed
         rng = np.random.default_rng([seed, 0x5EED, 1])
-        n = [
-            _Noise1D(rng, size)
-            for size in (
-                4093,
-                4091,
-                4079,
-                4073,
-                4057,
-                4051,
-                4049,
-                4027,
-                4021,
-                4019,
-                4013,
-                4007,
-                3989,
-                3967,
-                3947,
-                3943,
-                3929,
-                3923,
-            )
-        ]
+        n = [_Noise1D(rng, 4093 - 2 * i) for i in range(18)]  # distinct periods
         (
             self.head1,
             self.head2,
@@ -245,7 +245,7 @@ class _World:
         """Lateral distance of the forest edge; large where the view opens up."""
         op, nr = (self.open_r, self.near_r) if side > 0 else (self.open_l, self.near_l)
         openness = _clip01(1.6 * op(z / 40.0) + 0.25)
-        return 3.2 + 3.0 * (nr(z / 9.0) + 1.0) + 70.0 * openness * openness
+        return 3.2 + 3.0 * (nr(z / 9.0) + 1.0) + 40.0 * openness * openness
 
     def wall_height(self, z: np.ndarray, side: int) -> np.ndarray:
         wh = self.wall_h_r if side > 0 else self.wall_h_l
@@ -310,7 +310,7 @@ class _World:
         return objs
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=2)
 def _world(seed: int) -> _World:
     return _World(seed)
 
@@ -355,7 +355,8 @@ class _Look(NamedTuple):
     light: float  # overall illumination of the scene below the sky
     exposure: float
     sun: float  # strength of the side-lighting gradient (sunny seasons)
-    shadow: float  # light lost in the shadow of a cloud (0 when overcast)
+    noise: float  # sensor noise relative to the default (dim winter light is noisier)
+    treeline: float  # how jagged the forest's tree-line looks (snow rounds it off)
 
 
 _LOOKS = {
@@ -364,7 +365,7 @@ _LOOKS = {
         sky_hor=0.74,
         cloud_cover=0.30,
         cloud_tone=0.92,
-        cloud_contrast=0.8,
+        cloud_contrast=0.5,
         visibility=80.0,
         mtn_rock=0.40,
         mtn_snow=0.80,
@@ -394,14 +395,15 @@ _LOOKS = {
         light=1.0,
         exposure=1.0,
         sun=0.06,
-        shadow=0.0,
+        noise=1.0,
+        treeline=1.0,
     ),
     "spring": _Look(
         sky_top=0.60,
         sky_hor=0.76,
         cloud_cover=0.45,
         cloud_tone=0.88,
-        cloud_contrast=0.6,
+        cloud_contrast=0.45,
         visibility=60.0,
         mtn_rock=0.42,
         mtn_snow=0.86,
@@ -414,7 +416,7 @@ _LOOKS = {
         ground_fine=0.06,
         ground_mottle=0.05,
         ground_snow=0.0,
-        snow_patches=0.8,
+        snow_patches=0.7,
         ballast=0.47,
         rail=0.17,
         spruce=0.19,
@@ -431,7 +433,8 @@ _LOOKS = {
         light=1.0,
         exposure=1.0,
         sun=0.04,
-        shadow=0.0,
+        noise=1.0,
+        treeline=1.0,
     ),
     "fall": _Look(
         sky_top=0.66,
@@ -468,109 +471,105 @@ _LOOKS = {
         light=0.92,
         exposure=1.0,
         sun=0.02,
-        shadow=0.0,
+        noise=1.0,
+        treeline=1.0,
     ),
     "winter": _Look(
-        sky_top=0.78,
-        sky_hor=0.84,
+        sky_top=0.5,
+        sky_hor=0.68,
         cloud_cover=0.90,
-        cloud_tone=0.86,
+        cloud_tone=0.7,
         cloud_contrast=0.25,
-        visibility=28.0,
+        visibility=35.0,
         mtn_rock=0.55,
         mtn_snow=0.90,
         snowline=0.0,
-        hill=0.50,
-        ground=0.86,
-        ground_a=0.02,
+        hill=0.55,
+        ground=0.9,
+        ground_a=0.04,
         ground_b=0.0,
         ground_c=0.0,
-        ground_fine=0.02,
+        ground_fine=0.03,
         ground_mottle=0.02,
         ground_snow=1.0,
         snow_patches=0.0,
         ballast=0.80,
-        rail=0.25,
-        spruce=0.14,
+        rail=0.45,
+        spruce=0.2,
         birch=0.40,
         birch_var=0.05,
         birch_alpha=0.40,
         bush=0.84,
         house_roof=0.90,
-        wall_spruce=0.20,
+        wall_spruce=0.3,
         wall_birch=0.46,
         wall_tex=0.08,
         wall_patch=0.0,
-        wall_snow=0.25,
+        wall_snow=0.35,
         light=0.95,
         exposure=0.97,
         sun=0.015,
-        shadow=0.0,
+        noise=1.0,
+        treeline=0.4,
     ),
 }
 
 
 class _Conditions:
-    """One traversal of one season: weather, exposure drift, camera offset, sensor noise."""
+    """One traversal of one season: weather, exposure drift, camera offset, sensor noise.
+
+    Season-level conditions come from a generator seeded with (seed, season), the rest from
+    one seeded with (seed, season, traversal).
+    """
 
     def __init__(self, seed: int, season: str, traversal: int):
         self.look = _LOOKS[season]
-        rng = np.random.default_rng([seed, 0x5EA5, SEASONS.index(season), traversal])
-        n = [_Noise1D(rng, size) for size in (1021, 1019, 1013, 1009, 997, 991, 983, 977, 971, 967)]
-        (
-            self.gain,
-            self.offset,
-            self.hgrad,
-            self.vgrad,
-            self.sky,
-            self.ground,
-            self.shift,
-            self.pitch,
-            self.jitter,
-            self.cloud_var,
-        ) = n
-        self.sun_az = rng.uniform(0.0, 2.0 * np.pi)
-        self.cloud_cover = float(np.clip(self.look.cloud_cover + rng.normal(0, 0.1), 0.05, 0.97))
-        self.cloud_tex = _texture(rng, (32, 2048), [((8, 64), 1.0), ((4, 16), 0.6), ((2, 8), 0.3)])
-        self.cloud_speed = rng.uniform(0.2, 0.6)
-        # Cloud shadows on the ground: a wrapping field over (route, lateral), 1 unit/texel.
-        self.shadow_tex = _texture(rng, (1024, 128), [((32, 16), 1.0), ((12, 8), 0.5)])
+        index = SEASONS.index(season)
+        srng = np.random.default_rng([seed, 0x5EA5, index])
+        trng = np.random.default_rng([seed, 0x5EA5, index, traversal, 1])
+        self._season = {k: _Noise1D(srng, 1021 - 2 * i) for i, k in enumerate(_SEASON_DRIFT)}
+        self._traversal = {k: _Noise1D(trng, 1019 - 2 * i) for i, k in enumerate(_TRAVERSAL_DRIFT)}
+        self.sun_az = srng.uniform(0.0, 2.0 * np.pi)  # the season's time of day
+        cover = self.look.cloud_cover + trng.normal(0, 0.1)
+        self.cloud_cover = float(np.clip(cover, 0.05, 0.97))
+        self.cloud_tex = _texture(trng, (32, 2048), [((8, 64), 1.0), ((4, 16), 0.6), ((2, 8), 0.3)])
+        self.cloud_speed = trng.uniform(0.2, 0.6)
         # Sensor noise: two tables of co-prime lengths, so a frame's pattern repeats only
         # after ~10^6 frames; drawn from this traversal's own generator.
-        self.noise_a = rng.standard_normal((509, _H, _W), np.float32) * np.float32(_NOISE)
-        self.noise_b = rng.standard_normal((503, _H, _W), np.float32) * np.float32(_NOISE)
+        self.noise_a = trng.standard_normal((509, _H, _W), np.float32) * np.float32(_NOISE)
+        self.noise_b = trng.standard_normal((503, _H, _W), np.float32) * np.float32(_NOISE)
+
+    def drift(self, name: str, fid: np.ndarray) -> np.ndarray:
+        """Value of one slowly drifting nuisance at frames ``fid`` (season + traversal part)."""
+        t = fid / _DRIFT_SCALE[name]
+        out = np.zeros_like(t)
+        if name in _SEASON_DRIFT:
+            out += _SEASON_DRIFT[name] * self._season[name](t)
+        if name in _TRAVERSAL_DRIFT:
+            out += _TRAVERSAL_DRIFT[name] * self._traversal[name](t)
+        return out
 
 
 # ------------------------------------------------------------------------------ rendering
-
-
-def _shade(cond: _Conditions, x: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Light factor (1 in the sun, 1 - shadow under a cloud) at world points (x, z)."""
-    sx = np.asarray(x * 0.5 + 64.0, np.float32)
-    sy = np.mod(z * 0.5 + 97.0 * cond.cloud_speed, 1024.0).astype(np.float32)
-    shape = np.broadcast_shapes(sx.shape, sy.shape)
-    sh = _sample(cond.shadow_tex, np.broadcast_to(sx, shape), sy)
-    thresh = np.float32(1.0 - 2.0 * cond.cloud_cover)
-    return np.float32(1.0) - np.float32(cond.look.shadow) * _clip01((sh - thresh) * np.float32(2.0))
 
 
 def _render_block(world: _World, cond: _Conditions, frame_ids: np.ndarray) -> np.ndarray:
     look = cond.look
     fid = frame_ids.astype(np.float64)
     b = len(fid)
-    z = fid + _DRIFT["jitter"] * cond.jitter(fid / 20.0)  # imperfect synchronisation of the videos
+    z = fid + cond.drift("jitter", fid)  # imperfect synchronisation of the videos
     theta = world.heading(z)
     kappa = world.curvature(z)
-    cx = 32.0 + _DRIFT["shift"] * cond.shift(fid / 90.0)  # lateral camera offset, pixels
-    yh = _HORIZON + _DRIFT["pitch"] * cond.pitch(fid / 70.0)
+    cx = 32.0 + cond.drift("shift", fid)  # lateral camera offset, pixels
+    yh = _HORIZON + cond.drift("pitch", fid)
     du = _U[None, :] - cx[:, None]  # (B, W) column offset from the optical axis, pixels
     dy = _Y[None, :] - yh[:, None]  # (B, H) row offset below the horizon, pixels
     ep = -dy  # pixels above the horizon
 
     # Illumination drift along the route (per traversal) -----------------------------------
     sun_side = _tri(theta - cond.sun_az)  # -1..1: sun from the left .. right
-    light = look.light * (1.0 + _DRIFT["light"] * cond.ground(fid / 35.0))  # (B,)
-    sky_gain = 1.0 + _DRIFT["sky"] * cond.sky(fid / 50.0)
+    light = look.light * (1.0 + cond.drift("light", fid))  # (B,)
+    sky_gain = 1.0 + cond.drift("sky", fid)
 
     # Sky, mountains and hills: rows above the horizon only (the horizon stays in row 12).
     top_rows = int(np.ceil(_HORIZON + 0.4))  # rows [0, top_rows) can show sky
@@ -582,7 +581,7 @@ def _render_block(world: _World, cond: _Conditions, frame_ids: np.ndarray) -> np
     cmx = np.broadcast_to(cmx[:, None, :], (b, top_rows, _W))
     cmy = np.maximum(ept, 0.0)[:, :, None] * np.float32(1.2)
     clouds = _sample(cond.cloud_tex, cmx, cmy)
-    cover = cond.cloud_cover + 0.15 * cond.cloud_var(fid / 60.0)
+    cover = cond.cloud_cover + cond.drift("clouds", fid)
     thresh = (1.0 - 2.0 * cover).astype(np.float32)[:, None, None]
     cl = _clip01((clouds - thresh) * np.float32(1.5 * look.cloud_contrast))
     np.minimum(cl, np.float32(look.cloud_contrast), out=cl)
@@ -651,7 +650,7 @@ def _render_block(world: _World, cond: _Conditions, frame_ids: np.ndarray) -> np
         g -= np.float32(look.ground_snow * 0.45) * _clip01((ga - np.float32(1.3)) * np.float32(2.0))
     if look.snow_patches:
         # Snow lingers in hollows (low land-use values) and melts first on the fields.
-        patch = _clip01((np.float32(-1.0) - ga - np.float32(0.3) * gf) * np.float32(2.5))
+        patch = _clip01((np.float32(-1.4) - ga - np.float32(0.3) * gf) * np.float32(2.5))
         g += np.float32(look.snow_patches) * patch * (np.float32(0.85) - g)
     # Track: ballast bed and two rails (anti-aliased by the pixel footprint).
     inv_foot = _F / d3  # pixels per ground unit
@@ -666,8 +665,6 @@ def _render_block(world: _World, cond: _Conditions, frame_ids: np.ndarray) -> np
     fog = (d_row / (d_row + look.visibility)).astype(np.float32)[:, :, None]
     g += (np.float32(look.sky_hor * 0.85) - g) * fog
     g *= light.astype(np.float32)[:, None, None]
-    if look.shadow:
-        g *= _shade(cond, xg, zg[:, :, None])
     cov = _clip01(dyg + 0.5).astype(np.float32)[:, :, None]
     hz = top[:, g0:]  # the horizon row: sky above the line, ground below
     img[:, g0 : g0 + 1] = hz + cov[:, :1] * (g[:, :1] - hz)
@@ -686,16 +683,17 @@ def _render_block(world: _World, cond: _Conditions, frame_ids: np.ndarray) -> np
     any_hit = hit.any(axis=2)
     j = np.argmax(hit, axis=2)[:, :, None]
     jm = np.maximum(j - 1, 0)
-    g1 = np.take_along_axis(gmax, j, 2)[..., 0]
-    g0 = np.take_along_axis(gmax, jm, 2)[..., 0]
+    gm1 = np.take_along_axis(gmax, j, 2)[..., 0]
+    gm0 = np.take_along_axis(gmax, jm, 2)[..., 0]
     d1, d0 = _WALL_D[j[..., 0]], _WALL_D[jm[..., 0]]
-    frac = np.where(j[..., 0] > 0, _clip01(-g0 / np.maximum(g1 - g0, 1e-9)), 1.0)
+    frac = np.where(j[..., 0] > 0, _clip01(-gm0 / np.maximum(gm1 - gm0, 1e-9)), 1.0)
     d_hit = d0 + (d1 - d0) * frac  # (B, W)
     right = np.take_along_axis(gr, j, 2)[..., 0] >= np.take_along_axis(gl_, j, 2)[..., 0]
     z_hit = z[:, None] + d_hit
     h_top = np.where(right, world.wall_height(z_hit, 1), world.wall_height(z_hit, -1))
     jag_fade = _clip01(1.6 - d_hit / 25.0)
-    h_top = h_top + 1.1 * jag_fade * (np.abs(world.jag(z_hit * 1.3 + 50.0 * right)) - 0.5)
+    jag = np.abs(world.jag(z_hit * 1.3 + 50.0 * right)) - 0.5  # spruce tips
+    h_top = h_top + 1.1 * look.treeline * jag_fade * jag
     top = (yh[:, None] + _F * (_CAM_H - h_top) / d_hit).astype(np.float32)  # (B, W)
     bot = (yh[:, None] + _F * _CAM_H / d_hit).astype(np.float32)
     y3 = _Y.astype(np.float32)[None, :, None]
@@ -716,8 +714,6 @@ def _render_block(world: _World, cond: _Conditions, frame_ids: np.ndarray) -> np
     wfog = d_hit / (d_hit + look.visibility)
     near = (1.0 - wfog) / (1.0 + d_hit / 15.0)  # texture fades with distance
     lw = light[:, None]
-    if look.shadow:
-        lw = lw * _shade(cond, np.where(right, 1.0, -1.0) * (d_hit * np.abs(du) / _F), z_hit)
     base = ((tone + (look.sky_hor * 0.8 - tone) * wfog) * lw).astype(np.float32)
     tex_amp = (look.wall_tex * (0.6 + 0.8 * mix) * near * lw).astype(np.float32)
     wall = base[:, None, :] + tex_amp[:, None, :] * wt
@@ -740,12 +736,13 @@ def _render_block(world: _World, cond: _Conditions, frame_ids: np.ndarray) -> np
 
     # Exposure, side light, gradients, vignetting, noise --------------------------------------
     # Auto-exposure pulls each frame's mean part of the way towards a target level.
-    mean = img.reshape(b, -1).sum(axis=1, dtype=np.float64) / (_H * _W)
+    # (float64 row sums of a contiguous array: the same bits whatever the batch.)
+    mean = img.reshape(b, -1).astype(np.float64).sum(axis=1) / (_H * _W)
     auto = 1.0 + _AUTO_EXPOSURE * (_AE_TARGET / np.maximum(mean, 0.05) - 1.0)
-    gain = auto * look.exposure * (1.0 + _DRIFT["gain"] * cond.gain(fid / 45.0))
-    offset = _DRIFT["offset"] * cond.offset(fid / 30.0)
-    hg = _DRIFT["hgrad"] * cond.hgrad(fid / 40.0) + look.sun * sun_side
-    vg = _DRIFT["vgrad"] * cond.vgrad(fid / 40.0)
+    gain = auto * look.exposure * (1.0 + cond.drift("gain", fid))
+    offset = cond.drift("offset", fid)
+    hg = cond.drift("hgrad", fid) + look.sun * sun_side
+    vg = cond.drift("vgrad", fid)
     img = img * gain[:, None, None].astype(np.float32)
     img += (
         offset[:, None, None]
@@ -754,7 +751,10 @@ def _render_block(world: _World, cond: _Conditions, frame_ids: np.ndarray) -> np
     ).astype(np.float32)
     img *= _VIGNETTE
     ids = frame_ids.astype(np.int64)
-    img += cond.noise_a[ids % 509] + cond.noise_b[ids % 503]
+    noise = cond.noise_a[ids % 509] + cond.noise_b[ids % 503]
+    if look.noise != 1.0:
+        noise *= np.float32(look.noise)
+    img += noise
     return np.clip(img, 0.0, 1.0, out=img)
 
 
@@ -855,8 +855,6 @@ def _draw_objects(
     )
     fog = (d / (d + look.visibility))[:, None]
     lit = light[pb]
-    if look.shadow:
-        lit = lit * _shade(cond, objs.x[po][None, :], objs.z[po][None, :])[0]
     val = ((val + (look.sky_hor * 0.8 - val) * fog) * lit[:, None]).astype(np.float32)
     hw_px = hw * scale[:, None]  # (P, H) half-width, pixels
     alpha = np.where(kind == _BIRCH, look.birch_alpha, 1.0)[:, None]
