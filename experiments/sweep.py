@@ -125,6 +125,14 @@ def check_removed_pcs(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> N
         raise UserError(f"removed_pcs={list(cfg.removed_pcs)} leaves no component: PCA of "
                         f"{n_train_images} training images has {limit} components, so use "
                         f"counts below {limit}")
+    n_ica = cfg.ica.n_components
+    if "ica" in cfg.methods and n_ica != "all" and max(cfg.removed_pcs) + n_ica > limit:
+        raise UserError(
+            f"ica.n_components={n_ica} with removed_pcs up to {max(cfg.removed_pcs)} needs "
+            f"{max(cfg.removed_pcs) + n_ica} components but PCA of {n_train_images} training "
+            f"images has {limit}: use ica.n_components <= {limit - max(cfg.removed_pcs)}, "
+            "ica.n_components=all, or smaller removed_pcs"
+        )
 
 
 def pair_data(route: Route, split: Split, db: str, query: str) -> PairData:
@@ -137,6 +145,7 @@ def pair_data(route: Route, split: Split, db: str, query: str) -> PairData:
         query=images[query][split.test],
         db_ids=route.frame_ids[split.test],
         query_ids=route.frame_ids[split.test],
+        fits={},
     )
 
 
@@ -151,6 +160,7 @@ def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput)
                         cfg.tolerance, pr_convention=cfg.pr_convention)
     scalars = ev.scalars()
     timings = {"fit_seconds": out.fit_seconds, "encode_ms_per_image": out.encode_ms_per_image}
+    fit = {"n_iter": out.n_iter, "converged": int(out.converged)}
     name = run_name(pair, out.method, out.removed_pcs)
     staging = logdir / INCOMPLETE / name
     shutil.rmtree(staging, ignore_errors=True)
@@ -158,7 +168,8 @@ def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput)
     write_cell_run(
         staging,
         scalars={**{f"metrics/{k}": v for k, v in scalars.items()},
-                 **{f"timing/{k}": v for k, v in timings.items()}},
+                 **{f"timing/{k}": v for k, v in timings.items()},
+                 **{f"fit/{k}": v for k, v in fit.items()}},
         hparams={"season_pair": pair, "method": out.method,
                  "removed_pcs": float(out.removed_pcs)},
         trial_id=name,
@@ -170,6 +181,7 @@ def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput)
         examples=match_examples(data.query, data.db, data.query_ids, data.db_ids,
                                 out.top_indices[:, 0], cfg.tb.n_match_examples),
         basis_images=out.basis_images,
+        basis_tag=f"basis/{out.basis_name}",
     )
     np.savez(staging / "curve.npz", precision=ev.pr_precision, recall=ev.pr_recall)
     final = logdir / name
@@ -178,9 +190,22 @@ def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput)
     return {
         "season_pair": pair, "db_season": data.db_season, "query_season": data.query_season,
         "method": out.method, "removed_pcs": out.removed_pcs, "n_train": len(data.train),
-        "n_test": len(data.query), "tolerance": cfg.tolerance, **scalars, **timings,
+        "n_test": len(data.query), "tolerance": cfg.tolerance, **scalars, **timings, **fit,
         "seed": cfg.seed, "run": name,
     }
+
+
+def log_cell(log: RunLog, counter: str, row: dict, out: CellOutput) -> None:
+    k_text = f" k={out.removed_pcs}" if out.method in SWEEPS_REMOVED_PCS else ""
+    iters = f"  {out.n_iter} iterations" if out.n_iter else ""
+    log(
+        f"{counter} {row['season_pair']} {out.method}{k_text}: recall@1 "
+        f"{row['recall_at_1']:.3f}  auc_pr {row['auc_pr']:.3f}  "
+        f"R@100P {row['recall_at_100_precision']:.3f}  "
+        f"fit {row['fit_seconds']:.2f} s{iters}  {row['encode_ms_per_image']:.4f} ms/img"
+    )
+    if out.warning:
+        log(f"warning: {row['season_pair']} {out.method}{k_text}: {out.warning}")
 
 
 def write_summaries(logdir: Path) -> None:
@@ -231,24 +256,23 @@ def run_sweep(cfg: SweepConfig) -> Path:
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} cells already in results.csv")
     finished = len(cells) - len(todo)
     with Bar(len(todo), "sweep cells") as bar:
-        for (db, query), method in itertools.product(pairs, cfg.methods):
+        for db, query in pairs:
             pair = f"{db}-{query}"
-            pending = tuple(k for (p, m, k) in todo if p == (db, query) and m == method)
-            if not pending:
-                continue
-            data = pair_data(route, split, db, query)
-            for out in METHODS[method](data, pending, cfg):
-                shutil.rmtree(logdir / run_name(pair, method, out.removed_pcs),
-                              ignore_errors=True)  # a run left by a crash before its row
-                row = finish_cell(logdir, cfg, data, out)
-                append_results(logdir / "results.csv", [row])
-                finished += 1
-                bar.advance()
-                k_text = f" k={out.removed_pcs}" if method in SWEEPS_REMOVED_PCS else ""
-                log(f"[{finished}/{len(cells)}] {pair} {method}{k_text}: recall@1 "
-                    f"{row['recall_at_1']:.3f}  auc_pr {row['auc_pr']:.3f}  "
-                    f"R@100P {row['recall_at_100_precision']:.3f}  "
-                    f"fit {row['fit_seconds']:.2f} s  {row['encode_ms_per_image']:.4f} ms/img")
+            data = None  # built on first use; its PCA fit then serves PCA and ICA
+            for method in cfg.methods:
+                pending = tuple(k for (p, m, k) in todo if p == (db, query) and m == method)
+                if not pending:
+                    continue
+                if data is None:
+                    data = pair_data(route, split, db, query)
+                for out in METHODS[method](data, pending, cfg):
+                    # A run left by a crash before its row was written is redone.
+                    shutil.rmtree(logdir / run_name(pair, method, out.removed_pcs), True)
+                    row = finish_cell(logdir, cfg, data, out)
+                    append_results(logdir / "results.csv", [row])
+                    finished += 1
+                    bar.advance()
+                    log_cell(log, f"[{finished}/{len(cells)}]", row, out)
     write_summaries(logdir)
     log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
         f"view with: tensorboard --logdir {logdir}")

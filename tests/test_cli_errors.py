@@ -86,6 +86,12 @@ CONFIG_CASES = {
     "pair outside seasons": (["season_pairs=summer-winter"], ["winter", "data.seasons"]),
     "negative removed count": (["removed_pcs=[-1,5]"], ["removed_pcs"]),
     "removed count leaves nothing": ([*SMALL, "removed_pcs=[0,599]"], ["599", "below 599"]),
+    "more ICs than the data allow": (
+        [*SMALL, "ica.n_components=590"],
+        ["ica.n_components=590", "up to 20", "ica.n_components <= 579"],
+    ),
+    "ICs not a count": (["ica.n_components=many"], ["ica.n_components=many", "all"]),
+    "unknown ICA contrast": (["ica.fun=tanh"], ["ica.fun=tanh", "logcosh"]),
 }
 
 

@@ -29,7 +29,7 @@ def test_results_table_has_one_row_per_cell(small_sweep):
     assert tuple(header) == COLUMNS
     rows = read_results(logdir / "results.csv")
     cells = {(r["season_pair"], r["method"], r["removed_pcs"]) for r in rows}
-    assert len(rows) == len(cells) == 3 * (1 + 3)
+    assert len(rows) == len(cells) == 3 * (1 + 3 + 3)  # raw, PCA and ICA at k = 0, 5, 20
     assert {r["season_pair"] for r in rows} == PAIRS
     for r in rows:
         assert r["db_season"] + "-" + r["query_season"] == r["season_pair"]
@@ -39,6 +39,10 @@ def test_results_table_has_one_row_per_cell(small_sweep):
         # Every query has a true match, so the PR curve reaches full recall at precision R@1.
         assert r["precision_at_full_recall"] == pytest.approx(r["recall_at_1"])
         assert r["recall_at_1"] <= r["recall_at_5"] <= r["recall_at_10"]
+        if r["method"] == "ica":
+            assert 1 <= r["n_iter"] <= 200 and r["converged"] == (r["n_iter"] < 200)
+        else:
+            assert r["n_iter"] == 0 and r["converged"] == 1
     # One plain line per finished cell, whatever the terminal.
     assert proc.stdout.count("recall@1") == len(rows)
 
@@ -60,8 +64,16 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
         tp, fp, tn, fn = data[:4, 0]  # threshold 0 accepts every query
         assert tp / (tp + fp) == pytest.approx(row["recall_at_1"], abs=1e-6)
         assert "matches/query_best_true" in tags["images"]
-        has_basis = "basis/removed_components" in tags["images"]
-        assert has_basis == (row["method"] == "pca" and row["removed_pcs"] > 0)
+        for key in ("n_iter", "converged"):
+            (event,) = ea.Scalars(f"fit/{key}")
+            assert event.value == row[key]
+        has_removed = "basis/removed_components" in tags["images"]
+        assert has_removed == (row["method"] == "pca" and row["removed_pcs"] > 0)
+        has_ics = "basis/independent_components" in tags["images"]
+        assert has_ics == (row["method"] == "ica")
+        if has_ics:  # the first 8 mixing columns as 32x64 tiles in a 2 x 4 grid
+            (image,) = ea.Images("basis/independent_components")
+            assert (image.height, image.width) == (2 * 32 + 1, 4 * 64 + 3)
         content = ea.PluginTagToContent("hparams")
         info = plugin_data_pb2.HParamsPluginData.FromString(
             content["_hparams_/session_start_info"]).session_start_info
@@ -90,8 +102,11 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
     logdir = tmp_path / "runs"
     shutil.copytree(finished, logdir)
     rows = read_results(logdir / "results.csv")
-    # Simulate a crash after two PCA runs were written but before their rows were.
-    lost = [r for r in rows if r["season_pair"] == "spring-fall" and r["method"] == "pca"][:2]
+    # Simulate a crash after PCA and ICA runs were written but before their rows were.
+    spring_fall = [r for r in rows if r["season_pair"] == "spring-fall"]
+    lost = [r for r in spring_fall if r["method"] == "pca"][:2] + [
+        r for r in spring_fall if r["method"] == "ica"
+    ][-1:]
     kept = [r for r in rows if r not in lost]
     lines = (logdir / "results.csv").read_text().splitlines()
     keep_runs = {r["run"] for r in kept}

@@ -20,7 +20,8 @@ from vpr_jax.metrics import PR_CONVENTIONS
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
 SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")
-METHODS = ("raw", "pca")
+METHODS = ("raw", "pca", "ica")
+ICA_FUNS = ("logcosh", "exp", "cube")
 
 
 def _check(ok: bool, message: str) -> None:
@@ -97,6 +98,33 @@ class PCAConfig:
 
 
 @dataclass(frozen=True)
+class ICAConfig:
+    """Symmetric FastICA after whitening with the pair's PCA fit (and removing k PCs)."""
+
+    n_components: int | str = 128  # independent components; "all": every one the data allow
+    fun: str = "logcosh"  # logcosh | exp | cube: the contrast G (scikit-learn's names)
+    alpha: float = 1.0  # logcosh only: G(u) = log cosh(alpha u) / alpha, alpha in [1, 2]
+    max_iter: int = 200  # fixed-point updates at most
+    tol: float = 1e-4  # stop when max |abs(diag(W_new W^T)) - 1| < tol
+    n_init: int = 1  # random initialisations run at once; the best negentropy is kept
+
+    def __post_init__(self):
+        n = self.n_components
+        _check(
+            n == "all" or (isinstance(n, int) and n >= 1),
+            f"ica.n_components={n} is not a count: use a number >= 1 or all",
+        )
+        _check(self.fun in ICA_FUNS, f"ica.fun={self.fun} is unknown: use {', '.join(ICA_FUNS)}")
+        _check(
+            self.fun != "logcosh" or 1.0 <= self.alpha <= 2.0,
+            f"ica.alpha={self.alpha} must lie in [1, 2]",
+        )
+        _check(self.max_iter >= 1, f"ica.max_iter={self.max_iter} must be >= 1")
+        _check(self.tol > 0, f"ica.tol={self.tol} must be > 0")
+        _check(self.n_init >= 1, f"ica.n_init={self.n_init} must be >= 1")
+
+
+@dataclass(frozen=True)
 class MatchingConfig:
     block_size: int = 4096  # database images scored at once; bounds memory on long routes
 
@@ -107,7 +135,7 @@ class MatchingConfig:
 @dataclass(frozen=True)
 class TensorBoardConfig:
     n_match_examples: int = 6  # query | best match | true match rows per run
-    n_basis_images: int = 8  # removed principal components shown as 32x64 eigen-images
+    n_basis_images: int = 8  # removed PCs / independent components shown as 32x64 images
     pr_thresholds: int = 201  # points of the TensorBoard PR curve
 
     def __post_init__(self):
@@ -120,7 +148,7 @@ class SweepConfig:
 
     preset: str = "quick"  # quick | paper: a file under experiments/configs/
     season_pairs: str = "all"  # all, or db-query pairs: summer-fall,spring-fall
-    methods: list[str] = field(default_factory=lambda: ["raw", "pca"])
+    methods: list[str] = field(default_factory=lambda: ["raw", "pca", "ica"])
     removed_pcs: list[int] = field(default_factory=lambda: [0, 5, 10, 20, 50, 100])
     tolerance: int = 2  # a match is correct when |query frame - db frame| <= tolerance
     pr_convention: str = "vpr_bench"  # vpr_bench | has_match | vpr_tutorial: PR recall
@@ -129,6 +157,7 @@ class SweepConfig:
     data: DataConfig = field(default_factory=DataConfig)
     split: SplitConfig = field(default_factory=SplitConfig)
     pca: PCAConfig = field(default_factory=PCAConfig)
+    ica: ICAConfig = field(default_factory=ICAConfig)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     tb: TensorBoardConfig = field(default_factory=TensorBoardConfig)
 

@@ -15,7 +15,8 @@ import jax
 import numpy as np
 
 from vpr_jax.config import SweepConfig
-from vpr_jax.encoders import pca
+from vpr_jax.encoders import ica, pca
+from vpr_jax.errors import UserError
 from vpr_jax.matching import top_k_matches
 
 TOP_K = 10  # enough for recall@10
@@ -29,6 +30,7 @@ class PairData(NamedTuple):
     query: np.ndarray  # (n_test, 32, 64) query season, same test places
     db_ids: np.ndarray  # original frame indices of the test places
     query_ids: np.ndarray
+    fits: dict  # fits shared by the methods of this pair (the PCA fit), filled on first use
 
 
 class CellOutput(NamedTuple):
@@ -39,6 +41,10 @@ class CellOutput(NamedTuple):
     fit_seconds: float
     encode_ms_per_image: float
     basis_images: np.ndarray | None  # (m, 32, 64) what the method removed or learned, if any
+    basis_name: str = "removed_components"  # TensorBoard tag under basis/
+    n_iter: int = 0  # iterations of an iterative fit (0: closed form)
+    converged: bool = True  # False when an iterative fit stopped at its iteration limit
+    warning: str | None = None  # one line for the run log (non-convergence)
 
 
 def _timed(fn: Callable, *args):
@@ -56,6 +62,17 @@ def _encode_ms(encode: Callable, pair: PairData) -> tuple[np.ndarray, np.ndarray
     return db, query, ms
 
 
+def shared_pca_fit(pair: PairData, cfg: SweepConfig) -> tuple[pca.PCAState, float]:
+    """The pair's PCA fit and its seconds, computed once and reused by PCA and ICA cells."""
+    if "pca" not in pair.fits:
+        pair.fits["pca"] = _timed(lambda x: pca.fit_pca(x, solver=cfg.pca.solver), pair.train)
+    return pair.fits["pca"]
+
+
+def _images(vectors: np.ndarray, pair: PairData) -> np.ndarray:
+    return np.asarray(vectors).reshape(len(vectors), *pair.train.shape[1:])
+
+
 def run_raw(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> list[CellOutput]:
     """Raw pixels, centred with the training mean; cosine does the L2 normalisation."""
     del removed_pcs
@@ -71,8 +88,7 @@ def run_pca(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> l
     Matching scores coefficient suffixes (``starts=removed_pcs``), which equals zeroing the
     first k coefficients or, with ``pca.output=pixels``, mapping the kept ones back to pixels.
     """
-    state, fit_s = _timed(lambda x: pca.fit_pca(x, solver=cfg.pca.solver), pair.train)
-    n_components = state.components.shape[0]
+    state, fit_s = shared_pca_fit(pair, cfg)
     if cfg.pca.output == "pixels":
         outputs = []
         for k in removed_pcs:
@@ -84,18 +100,66 @@ def run_pca(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> l
         scores, idx = top_k_matches(query, db, TOP_K, starts=removed_pcs,
                                     block_size=cfg.matching.block_size)
         outputs = [(k, scores[i], idx[i], ms) for i, k in enumerate(removed_pcs)]
-    components = np.asarray(state.components).reshape(n_components, *pair.train.shape[1:])
-    n_show = cfg.tb.n_basis_images
+    components = _images(state.components[: cfg.tb.n_basis_images], pair)
     return [
-        CellOutput("pca", k, s, i, fit_s, ms, components[: min(k, n_show)] if k else None)
+        CellOutput("pca", k, s, i, fit_s, ms, components[:k] if k else None)
         for k, s, i, ms in outputs
     ]
+
+
+def run_ica(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> list[CellOutput]:
+    """Symmetric FastICA per removed-PC count, all whitened from the pair's one PCA fit.
+
+    fit_seconds is the PCA fit plus that count's FastICA iterations: what ICA costs alone.
+    """
+    pca_state, pca_s = shared_pca_fit(pair, cfg)
+    rank = ica.data_rank(pca_state, len(pair.train))
+    c = cfg.ica
+    outputs = []
+    for k in removed_pcs:
+        try:
+            ica.resolve_n_components(c.n_components, k, rank)
+        except ValueError as err:
+            raise UserError(str(err)) from None
+        state, ica_s = _timed(
+            lambda x, k=k: ica.fit_ica(
+                x,
+                jax.random.key(cfg.seed),
+                n_components=c.n_components,
+                removed_pcs=k,
+                fun=c.fun,
+                alpha=c.alpha,
+                max_iter=c.max_iter,
+                tol=c.tol,
+                n_init=c.n_init,
+                pca_state=pca_state,
+            ),
+            pair.train,
+        )
+        db, query, ms = _encode_ms(lambda x, state=state: ica.encode(state, x), pair)
+        scores, idx = top_k_matches(query, db, TOP_K, block_size=cfg.matching.block_size)
+        n_iter, converged = int(state.n_iter), bool(state.converged)
+        warning = None if converged else (
+            f"ICA ({state.unmixing.shape[0]} components, removed_pcs={k}) did not converge: "
+            f"stopped at ica.max_iter={c.max_iter} above ica.tol={c.tol}; raise ica.max_iter "
+            "or ica.tol, or lower ica.n_components"
+        )
+        basis = _images(np.asarray(ica.mixing(state)).T[: cfg.tb.n_basis_images], pair)
+        outputs.append(
+            CellOutput(
+                "ica", k, scores[0], idx[0], pca_s + ica_s, ms, basis,
+                basis_name="independent_components", n_iter=n_iter, converged=converged,
+                warning=warning,
+            )  # fmt: skip
+        )
+    return outputs
 
 
 METHODS: dict[str, Callable[[PairData, tuple[int, ...], SweepConfig], list[CellOutput]]] = {
     "raw": run_raw,
     "pca": run_pca,
+    "ica": run_ica,
 }
 
 # Methods whose cells are indexed by a removed-PC count; the others run once with k = 0.
-SWEEPS_REMOVED_PCS = {"pca"}
+SWEEPS_REMOVED_PCS = {"pca", "ica"}

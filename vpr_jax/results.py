@@ -12,9 +12,9 @@ COLUMNS = (
     "season_pair", "db_season", "query_season", "method", "removed_pcs", "n_train", "n_test",
     "tolerance", "recall_at_1", "precision_at_full_recall", "auc_pr",
     "recall_at_100_precision", "recall_at_5", "recall_at_10", "fit_seconds",
-    "encode_ms_per_image", "seed", "run",
+    "encode_ms_per_image", "n_iter", "converged", "seed", "run",
 )
-INT_COLUMNS = {"removed_pcs", "n_train", "n_test", "tolerance", "seed"}
+INT_COLUMNS = {"removed_pcs", "n_train", "n_test", "tolerance", "n_iter", "converged", "seed"}
 TEXT_COLUMNS = {"season_pair", "db_season", "query_season", "method", "run"}
 
 
@@ -110,4 +110,11 @@ def markdown_table(rows: list[dict]) -> str:
         *table(rows),
         "",
     ]
+    stuck = [r for r in rows if not r["converged"]]
+    if stuck:
+        cells = ", ".join(f"{r['season_pair']} {r['method']} k={r['removed_pcs']}" for r in stuck)
+        lines += [
+            f"Not converged (stopped at the iteration limit, see sweep.log): {cells}.",
+            "",
+        ]
     return "\n".join(lines)

@@ -74,6 +74,7 @@ def write_cell_run(
     pr_convention: str,
     examples: np.ndarray,
     basis_images: np.ndarray | None,
+    basis_tag: str = "basis/removed_components",
 ) -> None:
     """Everything TensorBoard shows for one cell, at step 0.
 
@@ -93,5 +94,5 @@ def write_cell_run(
         writer.add_image("matches/query_best_true", examples, global_step=0, dataformats="HW")
         if basis_images is not None and len(basis_images):
             grid = tile(normalise_each(basis_images), n_cols=min(4, len(basis_images)))
-            writer.add_image("basis/removed_components", grid, global_step=0, dataformats="HW")
+            writer.add_image(basis_tag, grid, global_step=0, dataformats="HW")
         writer.file_writer.add_summary(_to_tbx(hp.hparams_pb(hparams, trial_id=trial_id)))

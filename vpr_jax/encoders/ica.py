@@ -1,0 +1,280 @@
+"""Symmetric (parallel) FastICA in JAX: independent components as place descriptors.
+
+The data are whitened with the suite's PCA fit (``vpr_jax.encoders.pca``), optionally after
+dropping the first ``removed_pcs`` components (change removal, then ICA): the whitened
+coordinates are the coefficients on components k, ..., k + c - 1, each divided by its
+standard deviation, so the training data have identity covariance.
+
+On whitened samples z, FastICA (Hyvarinen 1999) looks for an orthogonal W whose rows give
+maximally non-Gaussian projections. The one-unit fixed-point update for a row w is
+
+    w+ = E[z g(w.z)] - E[g'(w.z)] w
+
+with g the derivative of the contrast G (``fun``: logcosh, exp or cube). ``one_unit_update``
+is written for one row and ``jax.vmap``-ed over the rows of W; then the rows are made
+orthonormal together by symmetric decorrelation W <- (W W^T)^(-1/2) W (through ``eigh``),
+and this repeats in ``lax.while_loop`` until max |abs(diag(W_new W^T)) - 1| < tol or
+``max_iter`` updates. This is scikit-learn's ``FastICA(algorithm="parallel")``, fitted
+with the same whitening (population variance), contrast functions and stopping rule.
+
+The fitted ``ICAState`` is a pytree of arrays; ``encode(state, images)`` is pure and jitted,
+so it works under ``jax.vmap`` and inside other jitted functions. Components come out in a
+fixed order and sign: by decreasing pixel-space energy of their mixing column (the image an
+independent component adds), with that column's largest-magnitude pixel positive.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Literal, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+from jaxtyping import Array, Bool, Float, Int
+
+from vpr_jax.encoders import pca
+
+Fun = Literal["logcosh", "exp", "cube"]
+FUNS = ("logcosh", "exp", "cube")
+
+
+class ICAState(NamedTuple):
+    mean: Float[Array, " d"]  # training mean, subtracted before whitening
+    whitening: Float[Array, "c d"]  # PCA components k..k+c-1 over their standard deviations
+    unmixing: Float[Array, "c c"]  # orthogonal W: sources = W @ whitened
+    n_iter: Int[Array, ""]  # fixed-point updates run (of the kept initialisation)
+    converged: Bool[Array, ""]  # reached tol before max_iter
+
+
+# ------------------------------------------------------------------------- the algorithm
+
+
+def nonlinearity(fun: str, u: Float[Array, "..."], alpha: float | Float[Array, ""] = 1.0):
+    """g(u) and g'(u) for the contrast ``fun`` (logcosh with ``alpha`` in [1, 2])."""
+    if fun == "logcosh":
+        gu = jnp.tanh(alpha * u)
+        return gu, alpha * (1.0 - gu * gu)
+    if fun == "exp":
+        e = jnp.exp(-0.5 * u * u)
+        return u * e, (1.0 - u * u) * e
+    if fun == "cube":
+        return u * u * u, 3.0 * u * u
+    raise ValueError(f"unknown ICA contrast fun={fun!r}: use one of {', '.join(FUNS)}")
+
+
+def contrast(fun: str, u: Float[Array, "..."], alpha: float | Float[Array, ""] = 1.0):
+    """The contrast G itself (G' = g), for the negentropy objective."""
+    if fun == "logcosh":
+        # log cosh(a u) = |a u| + log1p(exp(-2 |a u|)) - log 2, stable for large |u|.
+        au = jnp.abs(alpha * u)
+        return (au + jnp.log1p(jnp.exp(-2.0 * au)) - jnp.log(2.0)) / alpha
+    if fun == "exp":
+        return -jnp.exp(-0.5 * u * u)
+    if fun == "cube":
+        return 0.25 * u**4
+    raise ValueError(f"unknown ICA contrast fun={fun!r}: use one of {', '.join(FUNS)}")
+
+
+def one_unit_update(
+    w: Float[Array, " c"], z: Float[Array, "n c"], fun: str, alpha
+) -> Float[Array, " c"]:
+    """The fixed-point step for one row: w+ = E[z g(w.z)] - E[g'(w.z)] w."""
+    gy, dgy = nonlinearity(fun, z @ w, alpha)
+    return z.T @ gy / z.shape[0] - jnp.mean(dgy) * w
+
+
+def symmetric_decorrelation(w: Float[Array, "c c"]) -> Float[Array, "c c"]:
+    """W <- (W W^T)^(-1/2) W: the nearest matrix with orthonormal rows."""
+    s, u = jnp.linalg.eigh(w @ w.T)
+    s = jnp.maximum(s, jnp.finfo(w.dtype).tiny)  # rounding can make tiny eigenvalues negative
+    return (u * lax.rsqrt(s)) @ (u.T @ w)
+
+
+@functools.partial(jax.jit, static_argnames=("fun",))
+def fastica(
+    z: Float[Array, "n c"],
+    w_init: Float[Array, "c c"],
+    fun: str = "logcosh",
+    alpha: float | Float[Array, ""] = 1.0,
+    max_iter: int | Int[Array, ""] = 200,
+    tol: float | Float[Array, ""] = 1e-4,
+) -> tuple[Float[Array, "c c"], Int[Array, ""], Float[Array, ""]]:
+    """Symmetric FastICA on whitened samples ``z``: (W, updates run, last change).
+
+    ``alpha``, ``max_iter`` and ``tol`` are traced, so changing them does not recompile;
+    ``jax.vmap`` over ``w_init`` runs several initialisations at once.
+    """
+    update_rows = jax.vmap(one_unit_update, in_axes=(0, None, None, None))
+
+    def keep_going(carry):
+        _, i, change = carry
+        return (i < max_iter) & (change >= tol)
+
+    def step(carry):
+        w, i, _ = carry
+        w_new = symmetric_decorrelation(update_rows(w, z, fun, alpha))
+        change = jnp.max(jnp.abs(jnp.abs(jnp.sum(w_new * w, axis=1)) - 1.0))
+        return w_new, i + 1, change
+
+    w0 = symmetric_decorrelation(w_init.astype(z.dtype))
+    start = (w0, jnp.asarray(0, jnp.int32), jnp.asarray(jnp.inf, z.dtype))
+    return lax.while_loop(keep_going, step, start)
+
+
+@functools.cache
+def _gaussian_contrast(fun: str, alpha: float) -> float:
+    """E[G(v)] for a standard normal v, by 80-point Gauss-Hermite quadrature."""
+    x, w = np.polynomial.hermite_e.hermegauss(80)
+    return float(np.sum(w * np.asarray(contrast(fun, jnp.asarray(x), alpha))) / np.sqrt(2 * np.pi))
+
+
+def negentropy(
+    w: Float[Array, "c c"], z: Float[Array, "n c"], fun: str, alpha: float
+) -> Float[Array, ""]:
+    """FastICA's objective: sum over components of (E[G(w.z)] - E[G(gaussian)])^2."""
+    gap = jnp.mean(contrast(fun, z @ w.T, alpha), axis=0) - _gaussian_contrast(fun, alpha)
+    return jnp.sum(gap * gap)
+
+
+# ------------------------------------------------------------------------------ fitting
+
+
+def data_rank(state: pca.PCAState, n_samples: int) -> int:
+    """Numerical rank of the training data behind a PCA fit (float32 matrix_rank rule)."""
+    var = np.asarray(state.explained_variance)
+    n_features = state.components.shape[1]
+    eps = np.finfo(np.float32).eps * max(n_samples, n_features)
+    return int(np.sum(var > var[0] * eps * eps)) if var.size and var[0] > 0 else 0
+
+
+def resolve_n_components(
+    n_components: int | str | None, removed_pcs: int, rank: int
+) -> int:
+    """``"all"`` / None -> every component left after removal; check an explicit count."""
+    left = rank - removed_pcs
+    if n_components in (None, "all"):
+        if left < 1:
+            raise ValueError(
+                f"removed_pcs={removed_pcs} leaves no component for ICA: the training data "
+                f"have rank {rank}"
+            )
+        return left
+    n = int(n_components)
+    if n < 1 or n > left:
+        raise ValueError(
+            f"ica.n_components={n} with removed_pcs={removed_pcs} needs {removed_pcs + n} "
+            f"components but the training data have rank {rank}: use ica.n_components <= "
+            f"{max(left, 0)} or ica.n_components=all"
+        )
+    return n
+
+
+@functools.partial(jax.jit, static_argnames=("removed_pcs", "n_components"))
+def whitening_matrix(
+    state: pca.PCAState, n_samples: int | Int[Array, ""], removed_pcs: int, n_components: int
+) -> Float[Array, "c d"]:
+    """Rows: PCA components k..k+c-1 over their population standard deviation."""
+    comps = state.components[removed_pcs : removed_pcs + n_components]
+    var = state.explained_variance[removed_pcs : removed_pcs + n_components]
+    return comps * lax.rsqrt(var * (n_samples - 1) / n_samples)[:, None]
+
+
+@jax.jit
+def mixing(state: ICAState) -> Float[Array, "d c"]:
+    """Columns: the image each independent component adds (pseudo-inverse of W @ K)."""
+    return jnp.linalg.pinv(state.whitening) @ state.unmixing.T
+
+
+@jax.jit
+def _canonical(state: ICAState) -> ICAState:
+    """Rows of W ordered by decreasing mixing-column energy; each column's peak positive."""
+    a = mixing(state)
+    order = jnp.argsort(-jnp.sum(a * a, axis=0))
+    a = a[:, order]
+    peak = a[jnp.argmax(jnp.abs(a), axis=0), jnp.arange(a.shape[1])]
+    sign = jnp.where(peak < 0, -1.0, 1.0).astype(a.dtype)
+    return state._replace(unmixing=state.unmixing[order] * sign[:, None])
+
+
+def fit_ica(
+    train: Float[Array, "n ..."],
+    key: jax.Array | None = None,
+    *,
+    n_components: int | str | None = "all",
+    removed_pcs: int = 0,
+    fun: Fun = "logcosh",
+    alpha: float = 1.0,
+    max_iter: int = 200,
+    tol: float = 1e-4,
+    w_init: Float[Array, "c c"] | None = None,
+    n_init: int = 1,
+    pca_state: pca.PCAState | None = None,
+    pca_solver: pca.Solver = "auto",
+) -> ICAState:
+    """Fit symmetric FastICA on training images (any trailing shape; flattened).
+
+    ``key`` draws the initial W (standard normal, as scikit-learn does); or pass ``w_init``.
+    ``n_init > 1`` runs that many initialisations at once (vmapped over keys) and keeps the
+    one with the largest negentropy. ``pca_state`` reuses a PCA fit of the same ``train``
+    (the sweep shares one per season pair); otherwise PCA is fitted here.
+    ``n_components="all"`` keeps every component the data allow after removing
+    ``removed_pcs`` (the seed's "all ICs, no dimension reduction").
+    """
+    if fun not in FUNS:
+        raise ValueError(f"unknown ICA contrast fun={fun!r}: use one of {', '.join(FUNS)}")
+    if fun == "logcosh" and not 1.0 <= alpha <= 2.0:
+        raise ValueError(f"ica.alpha={alpha} must lie in [1, 2] (logcosh)")
+    if max_iter < 1 or tol <= 0:
+        raise ValueError(f"need max_iter >= 1 and tol > 0, got {max_iter} and {tol}")
+    if n_init < 1 or (w_init is not None and n_init != 1):
+        raise ValueError(f"n_init={n_init}: use n_init >= 1, and n_init=1 with w_init")
+    if (key is None) == (w_init is None):
+        raise ValueError("pass exactly one of key (random initial W) and w_init")
+
+    x = pca.flatten(jnp.asarray(train, jnp.float32))
+    n = x.shape[0]
+    if pca_state is None:
+        pca_state = pca.fit_pca(x, solver=pca_solver)
+    c = resolve_n_components(n_components, removed_pcs, data_rank(pca_state, n))
+    k_white = whitening_matrix(pca_state, n, removed_pcs, c)
+    z = (x - pca_state.mean) @ k_white.T
+
+    if w_init is not None:
+        w_init = jnp.asarray(w_init, jnp.float32)
+        if w_init.shape != (c, c):
+            raise ValueError(f"w_init has shape {w_init.shape}, expected {(c, c)}")
+        w, n_iter, change = fastica(z, w_init, fun, alpha, max_iter, tol)
+    elif n_init == 1:
+        w, n_iter, change = fastica(z, jax.random.normal(key, (c, c)), fun, alpha, max_iter, tol)
+    else:
+        keys = jax.random.split(key, n_init)
+        inits = jax.vmap(lambda k: jax.random.normal(k, (c, c)))(keys)
+        ws, iters, changes = jax.vmap(fastica, in_axes=(None, 0, None, None, None, None))(
+            z, inits, fun, alpha, max_iter, tol
+        )
+        scores = jax.vmap(negentropy, in_axes=(0, None, None, None))(ws, z, fun, alpha)
+        best = jnp.argmax(scores)
+        w, n_iter, change = ws[best], iters[best], changes[best]
+    return _canonical(ICAState(pca_state.mean, k_white, w, n_iter, change < tol))
+
+
+@jax.jit
+def encode(state: ICAState, images: Float[Array, "n ..."]) -> Float[Array, "n c"]:
+    """Independent-component coefficients (sources) of images; unit variance on training."""
+    return ((pca.flatten(images) - state.mean) @ state.whitening.T) @ state.unmixing.T
+
+
+def amari_distance(unmixing: np.ndarray, true_mixing: np.ndarray) -> float:
+    """Amari et al. (1996) distance of P = unmixing @ true_mixing from a scaled permutation.
+
+    0 when every recovered component is exactly one source; at most 1.
+    """
+    p = np.abs(np.asarray(unmixing, np.float64) @ np.asarray(true_mixing, np.float64))
+    n = p.shape[0]
+    if n < 2:
+        return 0.0
+    rows = np.sum(p.sum(axis=1) / p.max(axis=1) - 1.0)
+    cols = np.sum(p.sum(axis=0) / p.max(axis=0) - 1.0)
+    return float((rows + cols) / (2.0 * n * (n - 1)))
