@@ -13,31 +13,17 @@ excluded; it is reported separately). Goals from the foundation issue:
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 
 import jax
 import numpy as np
+from common import ratio_row as row
+from common import seed_route, timed
 from sklearn.decomposition import PCA
 
-from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import pca
 from vpr_jax.matching import top_k_matches
 
 REMOVED_PCS = (0, 5, 10, 20, 50, 100)
-
-
-def timed(fn, repeats: int) -> tuple[float, float]:
-    """(first call seconds, median of ``repeats`` further calls)."""
-    start = time.perf_counter()
-    jax.block_until_ready(fn())
-    first = time.perf_counter() - start
-    runs = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn())
-        runs.append(time.perf_counter() - start)
-    return first, statistics.median(runs)
 
 
 def numpy_top_k(q: np.ndarray, d: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -50,22 +36,12 @@ def numpy_top_k(q: np.ndarray, d: np.ndarray, k: int) -> tuple[np.ndarray, np.nd
     return np.take_along_axis(s, idx, 1), idx
 
 
-def row(name: str, ours: float, peer: float, peer_name: str, goal: str) -> None:
-    print(f"{name:<34} {ours:9.4f} s  {peer_name:<30} {peer:9.4f} s  "
-          f"ratio {ours / peer:5.2f}x  (goal {goal})")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
 
-    n_train, n_test, gap = 2500, 3569, 100
-    route = synthetic_route(n_train + gap + n_test, ("summer", "fall"), seed=0)
-    summer, fall = route.images["summer"], route.images["fall"]
-    train = np.concatenate([summer[:n_train], fall[:n_train]]).reshape(2 * n_train, -1)
-    db = summer[n_train + gap :].reshape(n_test, -1)
-    query = fall[n_train + gap :].reshape(n_test, -1)
+    train, db, query = seed_route()
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}; train {train.shape}, "
           f"queries {query.shape[0]} x database {db.shape[0]}\n")
 

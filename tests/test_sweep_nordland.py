@@ -11,7 +11,7 @@ from vpr_jax.results import read_results
 SEASONS = ("summer", "fall")
 N_FRAMES = 90
 SPLIT = ["split.n_train=50", "split.n_test=30", "split.gap=4", "removed_pcs=[0,3]",
-         "data.seasons=[summer,fall]"]
+         "data.seasons=[summer,fall]", "methods=[raw,pca]"]  # the readers are under test
 
 
 def _frames(season):
