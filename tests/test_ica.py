@@ -245,7 +245,7 @@ def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     pair = PairData("summer", "fall", np.concatenate([s[:200], f[:200]]), s[250:], f[250:],
                     route.frame_ids[250:], route.frame_ids[250:], fits={})  # fmt: skip
     cfg = parse_config(["ica.n_components=12", "tb.n_basis_images=5"])
-    cells = run_ica(pair, (0, 4), cfg)
+    cells = list(run_ica(pair, (0, 4), cfg))
     state, _ = pair.fits["pca"]
     run_pca(pair, (0, 4), cfg)
     assert pair.fits["pca"][0] is state  # PCA reused the fit ICA made, not a second one

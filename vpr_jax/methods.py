@@ -8,7 +8,7 @@ one cell with ``removed_pcs=0``).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from typing import NamedTuple
 
 import jax
@@ -107,15 +107,17 @@ def run_pca(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> l
     ]
 
 
-def run_ica(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> list[CellOutput]:
+def run_ica(
+    pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig
+) -> Iterator[CellOutput]:
     """Symmetric FastICA per removed-PC count, all whitened from the pair's one PCA fit.
 
+    Yields each count's cell as soon as it is done, so the sweep saves it at once.
     fit_seconds is the PCA fit plus that count's FastICA iterations: what ICA costs alone.
     """
     pca_state, pca_s = shared_pca_fit(pair, cfg)
     rank = ica.data_rank(pca_state, len(pair.train))
     c = cfg.ica
-    outputs = []
     for k in removed_pcs:
         try:
             ica.resolve_n_components(c.n_components, k, rank)
@@ -145,17 +147,15 @@ def run_ica(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> l
             "or ica.tol, or lower ica.n_components"
         )
         basis = _images(np.asarray(ica.mixing(state)).T[: cfg.tb.n_basis_images], pair)
-        outputs.append(
-            CellOutput(
-                "ica", k, scores[0], idx[0], pca_s + ica_s, ms, basis,
-                basis_name="independent_components", n_iter=n_iter, converged=converged,
-                warning=warning,
-            )  # fmt: skip
-        )
-    return outputs
+        yield CellOutput(
+            "ica", k, scores[0], idx[0], pca_s + ica_s, ms, basis,
+            basis_name="independent_components", n_iter=n_iter, converged=converged,
+            warning=warning,
+        )  # fmt: skip
 
 
-METHODS: dict[str, Callable[[PairData, tuple[int, ...], SweepConfig], list[CellOutput]]] = {
+# A method maps (pair, removed-PC counts, config) to its cells, in any order, as they finish.
+METHODS: dict[str, Callable[[PairData, tuple[int, ...], SweepConfig], Iterable[CellOutput]]] = {
     "raw": run_raw,
     "pca": run_pca,
     "ica": run_ica,
