@@ -26,7 +26,7 @@ from vpr_jax.config import SweepConfig, identity, parse_config, to_dict
 from vpr_jax.data import SEASON_ORDER, Route, load_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
-from vpr_jax.methods import METHODS, SWEEPS_REMOVED_PCS, CellOutput, PairData
+from vpr_jax.methods import METHODS, SWEEPS_REMOVED_PCS, CellOutput, MethodContext, PairData
 from vpr_jax.metrics import evaluate_top_k
 from vpr_jax.plots import correct_matches_figure, pr_curves_figure
 from vpr_jax.progress import Bar
@@ -37,7 +37,7 @@ from vpr_jax.results import (
     markdown_table,
     read_results,
 )
-from vpr_jax.tb import match_examples, write_cell_run, write_experiment_config
+from vpr_jax.tb import TrainingRun, match_examples, write_cell_run, write_experiment_config
 
 METRIC_KEYS = ("recall_at_1", "precision_at_full_recall", "auc_pr", "recall_at_100_precision",
                "recall_at_5", "recall_at_10")
@@ -146,6 +146,17 @@ def pair_data(route: Route, split: Split, db: str, query: str) -> PairData:
         db_ids=route.frame_ids[split.test],
         query_ids=route.frame_ids[split.test],
         fits={},
+    )
+
+
+def method_context(cfg: SweepConfig, logdir: Path, pair: str, log: RunLog) -> MethodContext:
+    """Checkpoints under <train.checkpoint_dir>/<logdir name>/<pair>/<method>/; a training
+    run per auto-encoder next to its cell's run."""
+    ident = identity(cfg)
+    return MethodContext(
+        checkpoint_dir=Path(cfg.train.checkpoint_dir).expanduser().resolve() / logdir.name / pair,
+        training_log=lambda method: TrainingRun(logdir / pair / f"{method}_training", log),
+        identity={k: ident[k] for k in ("data", "split", "seed", "train")},
     )
 
 
@@ -259,13 +270,14 @@ def run_sweep(cfg: SweepConfig) -> Path:
         for db, query in pairs:
             pair = f"{db}-{query}"
             data = None  # built on first use; its PCA fit then serves PCA and ICA
+            ctx = method_context(cfg, logdir, pair, log)
             for method in cfg.methods:
                 pending = tuple(k for (p, m, k) in todo if p == (db, query) and m == method)
                 if not pending:
                     continue
                 if data is None:
                     data = pair_data(route, split, db, query)
-                for out in METHODS[method](data, pending, cfg):
+                for out in METHODS[method](data, pending, cfg, ctx):
                     # A run left by a crash before its row was written is redone.
                     shutil.rmtree(logdir / run_name(pair, method, out.removed_pcs), True)
                     row = finish_cell(logdir, cfg, data, out)

@@ -7,13 +7,22 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 
-# A small but complete sweep: the three default pairs, raw and PCA with three counts.
+# A small but complete sweep: the three default pairs, every method, three removed-PC counts
+# and tiny auto-encoders trained for two epochs.
 SMALL = ["data.n_frames=700", "split.n_train=300", "split.n_test=120", "split.gap=20",
-         "removed_pcs=[0,5,20]"]
+         "removed_pcs=[0,5,20]", "fae.hidden=32", "cae.channels=[4,8]", "cae.code_channels=2",
+         "train.epochs=2"]
 
 
 def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    """``python -m experiments.sweep ARGS`` in a fresh interpreter, as a user runs it."""
+    """``python -m experiments.sweep ARGS`` in a fresh interpreter, as a user runs it.
+
+    Unless the test names one, models are checkpointed next to the logdir (in the test's
+    own tmp folder), not in the repository's checkpoints/.
+    """
+    logdirs = [a.split("=", 1)[1] for a in args if a.startswith("logdir=")]
+    if logdirs and not any(a.startswith("train.checkpoint_dir=") for a in args):
+        args = (*args, f"train.checkpoint_dir={Path(logdirs[-1]).parent / 'checkpoints'}")
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     return subprocess.run([sys.executable, "-m", "experiments.sweep", *args], cwd=REPO,
                           env=env, capture_output=True, text=True, timeout=timeout)

@@ -238,16 +238,16 @@ def test_encode_is_pure_under_jit_vmap_and_inside_other_jitted_code():
 
 def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     from vpr_jax.config import parse_config
-    from vpr_jax.methods import PairData, run_ica, run_pca
+    from vpr_jax.methods import MethodContext, PairData, run_ica, run_pca
 
     route = synthetic_route(300, ("summer", "fall"), 0)
     s, f = route.images["summer"], route.images["fall"]
     pair = PairData("summer", "fall", np.concatenate([s[:200], f[:200]]), s[250:], f[250:],
                     route.frame_ids[250:], route.frame_ids[250:], fits={})  # fmt: skip
     cfg = parse_config(["ica.n_components=12", "tb.n_basis_images=5"])
-    cells = list(run_ica(pair, (0, 4), cfg))
+    cells = list(run_ica(pair, (0, 4), cfg, MethodContext()))
     state, _ = pair.fits["pca"]
-    run_pca(pair, (0, 4), cfg)
+    run_pca(pair, (0, 4), cfg, MethodContext())
     assert pair.fits["pca"][0] is state  # PCA reused the fit ICA made, not a second one
     direct = ica.fit_ica(pair.train, jax.random.key(cfg.seed), n_components=12, removed_pcs=4)
     q = np.asarray(ica.encode(direct, pair.query))

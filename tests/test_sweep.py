@@ -29,7 +29,8 @@ def test_results_table_has_one_row_per_cell(small_sweep):
     assert tuple(header) == COLUMNS
     rows = read_results(logdir / "results.csv")
     cells = {(r["season_pair"], r["method"], r["removed_pcs"]) for r in rows}
-    assert len(rows) == len(cells) == 3 * (1 + 3 + 3)  # raw, PCA and ICA at k = 0, 5, 20
+    # raw, PCA and ICA at k = 0, 5, 20, FAE, CAE
+    assert len(rows) == len(cells) == 3 * (1 + 3 + 3 + 1 + 1)
     assert {r["season_pair"] for r in rows} == PAIRS
     for r in rows:
         assert r["db_season"] + "-" + r["query_season"] == r["season_pair"]
@@ -41,6 +42,8 @@ def test_results_table_has_one_row_per_cell(small_sweep):
         assert r["recall_at_1"] <= r["recall_at_5"] <= r["recall_at_10"]
         if r["method"] == "ica":
             assert 1 <= r["n_iter"] <= 200 and r["converged"] == (r["n_iter"] < 200)
+        elif r["method"] in ("fae", "cae"):
+            assert r["n_iter"] == 2 and r["converged"] == 0  # 2 epochs, no early stop
         else:
             assert r["n_iter"] == 0 and r["converged"] == 1
     # One plain line per finished cell, whatever the terminal.
@@ -71,6 +74,7 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
         assert has_removed == (row["method"] == "pca" and row["removed_pcs"] > 0)
         has_ics = "basis/independent_components" in tags["images"]
         assert has_ics == (row["method"] == "ica")
+        assert ("basis/hidden_units" in tags["images"]) == (row["method"] == "fae")
         if has_ics:  # the first 8 mixing columns as 32x64 tiles in a 2 x 4 grid
             (image,) = ea.Images("basis/independent_components")
             assert (image.height, image.width) == (2 * 32 + 1, 4 * 64 + 3)
@@ -84,6 +88,21 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
         root.PluginTagToContent("hparams")["_hparams_/experiment"]).experiment
     assert {h.name for h in experiment.hparam_infos} == {"season_pair", "method", "removed_pcs"}
     assert "metrics/recall_at_1" in {m.name.tag for m in experiment.metric_infos}
+
+
+def test_autoencoder_training_is_logged_and_checkpointed(small_sweep):
+    logdir, proc = small_sweep
+    for pair in PAIRS:
+        for method in ("fae", "cae"):
+            ea = _accumulator(logdir / pair / f"{method}_training")
+            steps = [e.step for e in ea.Scalars("loss/train")]
+            assert steps == list(range(1, len(steps) + 1)) and len(steps) >= 2
+            assert len(ea.Scalars("loss/validation")) == 2  # one per epoch
+            images = ea.Tags()["images"]
+            assert "reconstructions/validation" in images and "inputs/augmented" in images
+            folder = logdir.parent / "checkpoints" / logdir.name / pair / method
+            assert sorted(p.name for p in folder.iterdir() if p.name.isdigit()) == ["1", "2"]
+    assert proc.stdout.count("validation loss") == 3 * 2 * 2  # a line per epoch
 
 
 def test_summaries_and_figures_are_written(small_sweep):
@@ -105,16 +124,20 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
     # Simulate a crash after PCA and ICA runs were written but before their rows were.
     spring_fall = [r for r in rows if r["season_pair"] == "spring-fall"]
     lost = [r for r in spring_fall if r["method"] == "pca"][:2] + [
-        r for r in spring_fall if r["method"] == "ica"
-    ][-1:]
+        r for r in spring_fall if r["method"] in ("ica", "fae")
+    ][-2:]
     kept = [r for r in rows if r not in lost]
     lines = (logdir / "results.csv").read_text().splitlines()
     keep_runs = {r["run"] for r in kept}
     (logdir / "results.csv").write_text(
         "\n".join([lines[0]] + [ln for ln in lines[1:] if ln.split(",")[-1] in keep_runs]) + "\n")
-    proc = run_cli(*SMALL, f"logdir={logdir}")
+    # The models trained by the first run are restored, not retrained.
+    checkpoints = finished.parent / "checkpoints"  # the first run's; both logdirs are "runs"
+    proc = run_cli(*SMALL, f"logdir={logdir}", f"train.checkpoint_dir={checkpoints}")
     assert proc.returncode == 0, proc.stderr
     assert f"resuming: {len(kept)} of {len(rows)}" in proc.stdout
+    assert "spring-fall fae: restored the trained model" in proc.stdout
+    assert "validation loss" not in proc.stdout
     assert proc.stdout.count("recall@1") == len(lost)
     again = read_results(logdir / "results.csv")
     assert len(again) == len(rows)

@@ -20,8 +20,9 @@ from vpr_jax.metrics import PR_CONVENTIONS
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
 SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")
-METHODS = ("raw", "pca", "ica")
+METHODS = ("raw", "pca", "ica", "fae", "cae")
 ICA_FUNS = ("logcosh", "exp", "cube")
+OPTIMIZERS = ("adam", "adamw", "sgd")
 
 
 def _check(ok: bool, message: str) -> None:
@@ -125,6 +126,67 @@ class ICAConfig:
 
 
 @dataclass(frozen=True)
+class FAEConfig:
+    """One-hidden-layer auto-encoder: 2,048 pixels -> hidden (ReLU) -> 2,048 (sigmoid)."""
+
+    hidden: int = 256  # code length: the place descriptor
+
+    def __post_init__(self):
+        _check(self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1")
+
+
+@dataclass(frozen=True)
+class CAEConfig:
+    """Convolutional auto-encoder: per level a conv (ReLU) + 2x2 max-pool; mirrored decoder."""
+
+    channels: list[int] = field(default_factory=lambda: [64, 128])  # widths, one per level
+    kernel_sizes: list[int] = field(default_factory=lambda: [5, 4])  # one per level
+    code_channels: int = 8  # code = (32 / 2^levels) x (64 / 2^levels) x code_channels values
+
+    def __post_init__(self):
+        _as_tuple(self, "channels")
+        _as_tuple(self, "kernel_sizes")
+        _check(
+            len(self.channels) == len(self.kernel_sizes) >= 1,
+            f"cae.channels={list(self.channels)} and cae.kernel_sizes="
+            f"{list(self.kernel_sizes)} need one entry per level, at least one level",
+        )
+        _check(len(self.channels) <= 5, "cae.channels: at most 5 levels for 32x64 images")
+        _check(
+            min(self.channels) >= 1 and min(self.kernel_sizes) >= 1 and self.code_channels >= 1,
+            "cae.channels, cae.kernel_sizes and cae.code_channels must be >= 1",
+        )
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Auto-encoder training (FAE and CAE), per season pair on its training images."""
+
+    epochs: int = 30  # at most; early stopping may end sooner
+    batch_size: int = 64
+    learning_rate: float = 1e-3
+    optimizer: str = "adam"  # adam | adamw | sgd (optax)
+    val_fraction: float = 0.1  # tail of each season's training stretch held out
+    patience: int = 3  # epochs without a better validation loss before stopping
+    augment: bool = True  # the seed's Table 2: horizontal flip, width/height shift 0.2
+    checkpoint_dir: str = "checkpoints"  # models go to <this>/<logdir name>/<pair>/<method>/
+
+    def __post_init__(self):
+        _check(self.epochs >= 1, f"train.epochs={self.epochs} must be >= 1")
+        _check(self.batch_size >= 1, f"train.batch_size={self.batch_size} must be >= 1")
+        _check(self.learning_rate > 0, f"train.learning_rate={self.learning_rate} must be > 0")
+        _check(
+            self.optimizer in OPTIMIZERS,
+            f"train.optimizer={self.optimizer} is unknown: use {', '.join(OPTIMIZERS)}",
+        )
+        _check(
+            0 < self.val_fraction < 1,
+            f"train.val_fraction={self.val_fraction} must lie strictly between 0 and 1",
+        )
+        _check(self.patience >= 1, f"train.patience={self.patience} must be >= 1")
+
+
+@dataclass(frozen=True)
 class MatchingConfig:
     block_size: int = 4096  # database images scored at once; bounds memory on long routes
 
@@ -148,7 +210,7 @@ class SweepConfig:
 
     preset: str = "quick"  # quick | paper: a file under experiments/configs/
     season_pairs: str = "all"  # all, or db-query pairs: summer-fall,spring-fall
-    methods: list[str] = field(default_factory=lambda: ["raw", "pca", "ica"])
+    methods: list[str] = field(default_factory=lambda: ["raw", "pca", "ica", "fae", "cae"])
     removed_pcs: list[int] = field(default_factory=lambda: [0, 5, 10, 20, 50, 100])
     tolerance: int = 2  # a match is correct when |query frame - db frame| <= tolerance
     pr_convention: str = "vpr_bench"  # vpr_bench | has_match | vpr_tutorial: PR recall
@@ -158,6 +220,9 @@ class SweepConfig:
     split: SplitConfig = field(default_factory=SplitConfig)
     pca: PCAConfig = field(default_factory=PCAConfig)
     ica: ICAConfig = field(default_factory=ICAConfig)
+    fae: FAEConfig = field(default_factory=FAEConfig)
+    cae: CAEConfig = field(default_factory=CAEConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     tb: TensorBoardConfig = field(default_factory=TensorBoardConfig)
 
@@ -185,7 +250,7 @@ class SweepConfig:
 EXTENDABLE_KEYS = ("preset", "season_pairs", "methods", "removed_pcs", "logdir", "tb",
                    "matching")
 
-_LIST_KEYS = ("methods", "removed_pcs", "data.seasons")
+_LIST_KEYS = ("methods", "removed_pcs", "data.seasons", "cae.channels", "cae.kernel_sizes")
 
 
 def _normalise_cli(argv: list[str]) -> list[str]:
@@ -245,4 +310,5 @@ def identity(cfg: SweepConfig | dict) -> dict:
     out = _plain(to_dict(cfg) if isinstance(cfg, SweepConfig) else cfg)
     out = {k: v for k, v in out.items() if k not in EXTENDABLE_KEYS}
     out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
+    out.get("train", {}).pop("checkpoint_dir", None)  # where models are kept, not what
     return out

@@ -1,21 +1,26 @@
 """One season pair through one method: fit on training images, encode, match.
 
-Pure computation, no files: the sweep runner writes what these return. Every method returns
-one ``CellOutput`` per removed-PC count it was asked for (methods without that knob return
-one cell with ``removed_pcs=0``).
+No result files: the sweep runner writes what these return. Every method returns one
+``CellOutput`` per removed-PC count it was asked for (methods without that knob return one
+cell with ``removed_pcs=0``). The auto-encoders checkpoint their training and report it
+through the ``MethodContext`` the runner passes in.
 """
 
 from __future__ import annotations
 
 import time
+import zlib
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
 import numpy as np
 
 from vpr_jax.config import SweepConfig
+from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import ica, pca
+from vpr_jax.encoders.train import TrainingLog, fit_autoencoder, split_validation
 from vpr_jax.errors import UserError
 from vpr_jax.matching import top_k_matches
 
@@ -47,6 +52,14 @@ class CellOutput(NamedTuple):
     warning: str | None = None  # one line for the run log (non-convergence)
 
 
+class MethodContext(NamedTuple):
+    """What a method may need from the runner besides data and config."""
+
+    checkpoint_dir: Path | None = None  # this pair's model folders go under it
+    training_log: Callable[[str], TrainingLog] | None = None  # method name -> its log
+    identity: dict | None = None  # what besides its spec determines a trained model
+
+
 def _timed(fn: Callable, *args):
     start = time.perf_counter()
     out = jax.block_until_ready(fn(*args))
@@ -73,21 +86,26 @@ def _images(vectors: np.ndarray, pair: PairData) -> np.ndarray:
     return np.asarray(vectors).reshape(len(vectors), *pair.train.shape[1:])
 
 
-def run_raw(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> list[CellOutput]:
+def run_raw(
+    pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig, ctx: MethodContext
+) -> list[CellOutput]:
     """Raw pixels, centred with the training mean; cosine does the L2 normalisation."""
-    del removed_pcs
+    del removed_pcs, ctx
     mean, fit_s = _timed(lambda x: jax.numpy.mean(pca.flatten(x), axis=0), pair.train)
     db, query, ms = _encode_ms(jax.jit(lambda x: pca.flatten(x) - mean), pair)
     scores, idx = top_k_matches(query, db, TOP_K, block_size=cfg.matching.block_size)
     return [CellOutput("raw", 0, scores[0], idx[0], fit_s, ms, None)]
 
 
-def run_pca(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> list[CellOutput]:
+def run_pca(
+    pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig, ctx: MethodContext
+) -> list[CellOutput]:
     """One PCA fit and one matching pass serve every removed-PC count.
 
     Matching scores coefficient suffixes (``starts=removed_pcs``), which equals zeroing the
     first k coefficients or, with ``pca.output=pixels``, mapping the kept ones back to pixels.
     """
+    del ctx
     state, fit_s = shared_pca_fit(pair, cfg)
     if cfg.pca.output == "pixels":
         outputs = []
@@ -108,13 +126,14 @@ def run_pca(pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig) -> l
 
 
 def run_ica(
-    pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig
+    pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig, ctx: MethodContext
 ) -> Iterator[CellOutput]:
     """Symmetric FastICA per removed-PC count, all whitened from the pair's one PCA fit.
 
     Yields each count's cell as soon as it is done, so the sweep saves it at once.
     fit_seconds is the PCA fit plus that count's FastICA iterations: what ICA costs alone.
     """
+    del ctx
     pca_state, pca_s = shared_pca_fit(pair, cfg)
     rank = ica.data_rank(pca_state, len(pair.train))
     c = cfg.ica
@@ -154,11 +173,75 @@ def run_ica(
         )  # fmt: skip
 
 
+def autoencoder_spec(method: str, cfg: SweepConfig) -> ae.Spec:
+    if method == "fae":
+        return ae.FAESpec(hidden=cfg.fae.hidden)
+    c = cfg.cae
+    return ae.CAESpec(tuple(c.channels), tuple(c.kernel_sizes), c.code_channels)
+
+
+def run_autoencoder(
+    method: str, pair: PairData, cfg: SweepConfig, ctx: MethodContext
+) -> list[CellOutput]:
+    """Train (or resume, or restore) the pair's auto-encoder; its code is the descriptor.
+
+    It trains on both seasons' training images minus the tail of each stretch, which is
+    the validation set for early stopping. fit_seconds is the training time (of all
+    sessions, when it was resumed); n_iter counts epochs; converged means early stopping
+    ended training before train.epochs.
+    """
+    name = f"{pair.db_season}-{pair.query_season}"
+    spec = autoencoder_spec(method, cfg)
+    train, val = split_validation(pair.train, 2, cfg.train.val_fraction)
+    log = ctx.training_log(method) if ctx.training_log else None
+    try:
+        result = fit_autoencoder(
+            spec,
+            train,
+            val,
+            jax.random.fold_in(jax.random.key(cfg.seed), zlib.crc32(method.encode())),
+            cfg.train,
+            checkpoint_dir=ctx.checkpoint_dir / method if ctx.checkpoint_dir else None,
+            identity={**(ctx.identity or {}), "season_pair": name, "method": method},
+            log=log,
+            name=f"{name} {method}",
+        )
+    finally:
+        if log is not None:
+            log.close()
+    encode = ae.make_encode(result.graphdef)
+    db, query, ms = _encode_ms(lambda x: encode(result.params, x), pair)
+    scores, idx = top_k_matches(query, db, TOP_K, block_size=cfg.matching.block_size)
+    basis = None
+    if method == "fae":  # what each hidden unit looks for: its weights as an image
+        weights = np.asarray(result.params["encoder"]["kernel"]).T[: cfg.tb.n_basis_images]
+        basis = _images(weights, pair)
+    return [
+        CellOutput(
+            method, 0, scores[0], idx[0], result.train_seconds, ms, basis,
+            basis_name="hidden_units", n_iter=result.epochs, converged=result.stopped_early,
+        )  # fmt: skip
+    ]
+
+
+def run_fae(pair, removed_pcs, cfg, ctx) -> list[CellOutput]:
+    del removed_pcs
+    return run_autoencoder("fae", pair, cfg, ctx)
+
+
+def run_cae(pair, removed_pcs, cfg, ctx) -> list[CellOutput]:
+    del removed_pcs
+    return run_autoencoder("cae", pair, cfg, ctx)
+
+
 # A method maps (pair, removed-PC counts, config) to its cells, in any order, as they finish.
-METHODS: dict[str, Callable[[PairData, tuple[int, ...], SweepConfig], Iterable[CellOutput]]] = {
+Method = Callable[[PairData, tuple[int, ...], SweepConfig, MethodContext], Iterable[CellOutput]]
+METHODS: dict[str, Method] = {
     "raw": run_raw,
     "pca": run_pca,
     "ica": run_ica,
+    "fae": run_fae,
+    "cae": run_cae,
 }
 
 # Methods whose cells are indexed by a removed-PC count; the others run once with k = 0.

@@ -96,3 +96,35 @@ def write_cell_run(
             grid = tile(normalise_each(basis_images), n_cols=min(4, len(basis_images)))
             writer.add_image(basis_tag, grid, global_step=0, dataformats="HW")
         writer.file_writer.add_summary(_to_tbx(hp.hparams_pb(hparams, trial_id=trial_id)))
+
+
+class TrainingRun:
+    """A training run's TensorBoard log: losses per step, image grids, and run-log lines.
+
+    ``begin(step)`` opens the writer with ``purge_step=step + 1``: when training resumes
+    after the checkpoint of ``step``, TensorBoard drops what an interrupted session logged
+    after it, so no step appears twice.
+    """
+
+    def __init__(self, run_dir: Path, line):
+        self._run_dir, self._line, self._writer = Path(run_dir), line, None
+
+    def begin(self, step: int) -> None:
+        self._run_dir.mkdir(parents=True, exist_ok=True)
+        self._writer = SummaryWriter(str(self._run_dir), purge_step=step + 1)
+
+    def scalar(self, tag: str, value: float, step: int) -> None:
+        self._writer.add_scalar(tag, float(value), global_step=step)
+
+    def images(self, tag: str, images: np.ndarray, step: int) -> None:
+        images = np.asarray(images, np.float32)
+        images = images[..., 0] if images.ndim == 4 else images
+        grid = tile(np.clip(images, 0.0, 1.0), n_cols=min(6, len(images)))
+        self._writer.add_image(tag, grid, global_step=step, dataformats="HW")
+
+    def line(self, text: str) -> None:
+        self._line(text)
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()

@@ -1,0 +1,160 @@
+"""Auto-encoder training: loss falls, checkpoints round-trip, interrupted runs resume exactly."""
+
+import jax
+import numpy as np
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from vpr_jax.config import TrainConfig
+from vpr_jax.data.synthetic import synthetic_route
+from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.encoders.train import (
+    fit_autoencoder,
+    load_encoder,
+    make_eval_loss,
+    split_validation,
+)
+from vpr_jax.errors import UserError
+from vpr_jax.tb import TrainingRun
+
+SPEC = ae.FAESpec(hidden=16)
+SETTINGS = TrainConfig(epochs=3, batch_size=32, patience=10)
+
+
+@pytest.fixture(scope="module")
+def data():
+    route = synthetic_route(120, ("summer", "fall"), 0)
+    images = np.concatenate([route.images["summer"], route.images["fall"]])
+    return split_validation(images, 2, 0.1)  # 216 training images: 6 steps per epoch
+
+
+class StopAt:
+    """A training log that interrupts training at one step, like Ctrl-C would."""
+
+    def __init__(self, step: int, inner=None):
+        self.step, self.inner = step, inner
+
+    def begin(self, step):
+        if self.inner:
+            self.inner.begin(step)
+
+    def scalar(self, tag, value, step):
+        if self.inner:
+            self.inner.scalar(tag, value, step)
+        if step == self.step:
+            raise KeyboardInterrupt
+
+    def images(self, tag, images, step):
+        if self.inner:
+            self.inner.images(tag, images, step)
+
+    def line(self, text):
+        pass
+
+    def close(self):
+        if self.inner:
+            self.inner.close()
+
+
+def _equal(a, b) -> bool:
+    return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b),
+                                                      strict=True))  # fmt: skip
+
+
+def _train_steps(run_dir, tag="loss/train") -> list[int]:
+    ea = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
+    ea.Reload()
+    return [e.step for e in ea.Scalars(tag)]
+
+
+def test_split_validation_holds_out_the_tail_of_each_season():
+    images = np.arange(20).reshape(20, 1, 1)
+    train, val = split_validation(images, 2, 0.2)
+    assert train.ravel().tolist() == [0, 1, 2, 3, 4, 5, 6, 7, 10, 11, 12, 13, 14, 15, 16, 17]
+    assert val.ravel().tolist() == [8, 9, 18, 19]
+    with pytest.raises(UserError, match="val_fraction"):
+        split_validation(np.zeros((4, 1, 1)), 2, 0.9)
+
+
+@pytest.mark.parametrize("spec", [SPEC, ae.CAESpec((4, 8), (3, 3), 2)])
+def test_validation_loss_falls(data, spec):
+    train, val = data
+    graphdef, initial = ae.build(spec, jax.random.fold_in(jax.random.key(0), 0))
+    before = make_eval_loss(graphdef, 32)(initial, val)
+    settings = TrainConfig(epochs=5, batch_size=16, learning_rate=3e-3, patience=10)
+    result = fit_autoencoder(spec, train, val, jax.random.key(0), settings)
+    assert result.best_val_loss < 0.8 * before
+    assert result.epochs == 5 and result.steps == 5 * (len(train) // 16)
+    assert not result.restored and result.resumed_epoch == 0
+
+
+def test_checkpoint_round_trip_gives_identical_codes(data, tmp_path):
+    train, val = data
+    result = fit_autoencoder(SPEC, train, val, jax.random.key(1), SETTINGS,
+                             checkpoint_dir=tmp_path / "fae")  # fmt: skip
+    encode, params = load_encoder(tmp_path / "fae")
+    assert _equal(params, result.params)
+    np.testing.assert_array_equal(
+        encode(params, val), ae.make_encode(result.graphdef)(result.params, val)
+    )
+    # Run again: the finished model is restored, not retrained.
+    again = fit_autoencoder(SPEC, train, val, jax.random.key(1), SETTINGS,
+                            checkpoint_dir=tmp_path / "fae")  # fmt: skip
+    assert again.restored and _equal(again.params, result.params)
+    assert again.epochs == result.epochs and again.train_seconds == pytest.approx(
+        result.train_seconds, rel=1e-6
+    )
+
+
+def test_an_interrupted_run_resumes_at_its_saved_epoch_and_ends_as_an_uninterrupted_one(
+    data, tmp_path
+):
+    train, val = data
+    key = jax.random.key(2)
+    whole = fit_autoencoder(SPEC, train, val, key, SETTINGS, checkpoint_dir=tmp_path / "whole")
+    steps_per_epoch = len(train) // 32
+    folder, tb_dir = tmp_path / "cut", tmp_path / "tb"
+    cut = StopAt(2 * steps_per_epoch + 3, TrainingRun(tb_dir, print))  # mid epoch 3
+    with pytest.raises(KeyboardInterrupt):
+        try:
+            fit_autoencoder(SPEC, train, val, key, SETTINGS, checkpoint_dir=folder, log=cut)
+        finally:
+            cut.close()  # as the sweep does: what was logged reaches the disk
+    assert _train_steps(tb_dir)[-1] == 2 * steps_per_epoch + 3
+    log = TrainingRun(tb_dir, print)
+    try:
+        resumed = fit_autoencoder(SPEC, train, val, key, SETTINGS, checkpoint_dir=folder, log=log)
+    finally:
+        log.close()
+    assert resumed.resumed_epoch == 2 and resumed.steps == whole.steps
+    assert _equal(resumed.params, whole.params)
+    assert resumed.best_val_loss == whole.best_val_loss
+    # TensorBoard shows every step once: what the cut session logged after epoch 2 is purged.
+    assert _train_steps(tb_dir) == list(range(1, whole.steps + 1))
+    assert _train_steps(tb_dir, "loss/validation") == [
+        steps_per_epoch * e for e in (1, 2, 3)
+    ]
+
+
+def test_early_stopping_keeps_the_best_parameters(data):
+    train, val = data
+    # A learning rate far below float32 resolution: the loss cannot improve after epoch 1.
+    frozen = TrainConfig(epochs=10, batch_size=32, learning_rate=1e-12, patience=2)
+    result = fit_autoencoder(SPEC, train, val, jax.random.key(3), frozen)
+    assert result.stopped_early and result.epochs == 3
+    graphdef = result.graphdef
+    assert make_eval_loss(graphdef, 32)(result.params, val) == result.best_val_loss
+
+
+def test_a_checkpoint_of_other_data_or_settings_is_refused(data, tmp_path):
+    train, val = data
+    one = TrainConfig(epochs=1, batch_size=32)
+    folder = tmp_path / "m"
+    fit_autoencoder(SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder,
+                    identity={"seed": 4})  # fmt: skip
+    with pytest.raises(UserError, match="other data or settings"):
+        fit_autoencoder(SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder,
+                        identity={"seed": 5})  # fmt: skip
+    with pytest.raises(UserError, match="other data or settings"):
+        fit_autoencoder(ae.FAESpec(hidden=8), train, val, jax.random.key(4), one,
+                        checkpoint_dir=folder, identity={"seed": 4})  # fmt: skip

@@ -1,0 +1,106 @@
+"""Jittable image augmentation for auto-encoder training.
+
+Matches Table 2 of the study: random horizontal flip, width shift 0.2, height shift 0.2, no
+rotation and no vertical flip, with Keras ``ImageDataGenerator`` semantics: each shift is drawn
+uniformly in ``[-frac * size, +frac * size]`` and the pixels it uncovers repeat the nearest edge
+pixel (``fill_mode="nearest"``). Shifts are whole pixels, so every output pixel is a copy of an
+input pixel (no interpolation): values never leave the input's range.
+
+Images are float32 ``(H, W)`` or ``(H, W, 1)``; batches put a leading ``B`` axis in front. The
+config holds Python scalars only and must be static under ``jax.jit``, e.g.
+``jax.jit(augment_batch, static_argnames="cfg")``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
+
+__all__ = ["TABLE2", "AugmentConfig", "augment_batch", "augment_one", "flip_image", "max_shift",
+           "shift_image"]
+
+
+class AugmentConfig(NamedTuple):
+    """Table 2 of the study; shifts are fractions of the image width / height."""
+
+    horizontal_flip: bool = True
+    width_shift: float = 0.2
+    height_shift: float = 0.2
+
+
+TABLE2 = AugmentConfig()  # the study's settings, the default of every function here
+
+
+def max_shift(fraction: float, size: int) -> int:
+    """The largest whole-pixel shift a ``fraction`` of ``size`` pixels allows.
+
+    Floor, so a drawn shift never exceeds ``fraction * size`` (0.2 * 64 = 12.8 -> 12); the small
+    epsilon keeps e.g. 0.29 * 100 = 28.999999999999996 at 29.
+    """
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"shift fraction must be in [0, 1], got {fraction}")
+    return math.floor(fraction * size + 1e-9)
+
+
+def shift_image(
+    image: Float[Array, "h w *c"], dy: Int[ArrayLike, ""], dx: Int[ArrayLike, ""]
+) -> Float[Array, "h w *c"]:
+    """Move the content ``dy`` pixels down and ``dx`` pixels right, repeating edge pixels.
+
+    ``out[y, x] = image[clip(y - dy), clip(x - dx)]``: a gather with clipped indices is
+    nearest-edge fill for any shift, traced or not, with no branching.
+    """
+    h, w = image.shape[0], image.shape[1]
+    rows = jnp.clip(jnp.arange(h) - dy, 0, h - 1)
+    cols = jnp.clip(jnp.arange(w) - dx, 0, w - 1)
+    return jnp.take(jnp.take(image, rows, axis=0), cols, axis=1)
+
+
+def flip_image(image: Float[Array, "h w *c"]) -> Float[Array, "h w *c"]:
+    """Mirror left-right (the width axis)."""
+    return image[:, ::-1]
+
+
+def augment_one(
+    key: PRNGKeyArray, image: Float[Array, "h w *c"], cfg: AugmentConfig = TABLE2
+) -> Float[Array, "h w *c"]:
+    """One random shift, then (with probability 0.5) a left-right flip, of one image.
+
+    ``dy ~ round(uniform(-height_shift * H, height_shift * H))``, clipped to ``max_shift`` so
+    rounding never overshoots the range; ``dx`` likewise with the width. Keras flips after the
+    affine shift; the order only changes the sign of ``dx``, whose law is symmetric anyway.
+    """
+    h, w = image.shape[0], image.shape[1]
+    k_flip, k_dy, k_dx = jax.random.split(key, 3)
+    out = image
+    # cfg is static: disabled parts are left out of the graph, so an all-off config is identity.
+    if cfg.height_shift > 0 or cfg.width_shift > 0:
+        dy = _draw_shift(k_dy, cfg.height_shift, h)
+        dx = _draw_shift(k_dx, cfg.width_shift, w)
+        out = shift_image(out, dy, dx)
+    if cfg.horizontal_flip:
+        out = jnp.where(jax.random.bernoulli(k_flip), flip_image(out), out)
+    return out
+
+
+def augment_batch(
+    key: PRNGKeyArray, images: Float[Array, "b h w *c"], cfg: AugmentConfig = TABLE2
+) -> Float[Array, "b h w *c"]:
+    """Augment every image of a batch independently (one subkey per image)."""
+    keys = jax.random.split(key, images.shape[0])
+    # Close over cfg rather than vmapping it: its Python scalars must stay static.
+    return jax.vmap(lambda k, im: augment_one(k, im, cfg))(keys, images)
+
+
+def _draw_shift(key: PRNGKeyArray, fraction: float, size: int) -> Int[Array, ""]:
+    """``round(uniform(-fraction * size, fraction * size))`` kept within ``max_shift``."""
+    limit = max_shift(fraction, size)
+    if limit == 0:
+        return jnp.zeros((), jnp.int32)
+    span = fraction * size
+    shift = jnp.round(jax.random.uniform(key, (), minval=-span, maxval=span))
+    return jnp.clip(shift, -limit, limit).astype(jnp.int32)

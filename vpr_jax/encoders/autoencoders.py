@@ -1,0 +1,139 @@
+"""The seed's learned encoders: a one-hidden-layer auto-encoder (FAE) and a convolutional
+auto-encoder (CAE). The code (bottleneck) is the place descriptor.
+
+Flax NNX modules stay behind a functional boundary: ``build`` splits a module once into a
+graph definition and ``params``, a nested dict of arrays (``nnx.to_pure_dict``), and
+``make_encode(graphdef)`` returns a plain jitted ``encode(params, images)`` that merges the
+two inside. Other JAX code can call it, ``vmap`` it, differentiate through it and jit it
+inside its own functions.
+
+- FAE: 2,048 pixels -> ``hidden`` units (ReLU) -> 2,048 (sigmoid, images lie in [0, 1]).
+- CAE on (32, 64, 1): per level a same-padded convolution (ReLU) and 2x2 max-pooling, then a
+  3x3 convolution to ``code_channels``; the decoder mirrors it with nearest-neighbour
+  up-sampling (the seed's "up-pooling") and ends in a sigmoid. The default is sized like
+  CALC's encoder (rpng/calc: about 137k parameters, a code of about 1k values) with two
+  down-sampling steps instead of three, since our images are 32x64, not 120x160:
+  5x5x64, pool, 4x4x128, pool, 3x3x8 -> a 8x16x8 = 1,024-value code, 142k encoder
+  parameters.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from flax import nnx
+from jaxtyping import Array, Float
+
+IMAGE_SHAPE = (32, 64)
+
+
+class FAESpec(NamedTuple):
+    hidden: int = 256  # code length
+
+
+class CAESpec(NamedTuple):
+    channels: tuple[int, ...] = (64, 128)  # one conv + 2x2 max-pool per level
+    kernel_sizes: tuple[int, ...] = (5, 4)  # one per level
+    code_channels: int = 8  # channels of the code; code length = 8 x 16 x this (2 levels)
+
+
+class FAE(nnx.Module):
+    def __init__(self, spec: FAESpec, n_pixels: int, *, rngs: nnx.Rngs):
+        self.encoder = nnx.Linear(n_pixels, spec.hidden, rngs=rngs)
+        self.decoder = nnx.Linear(spec.hidden, n_pixels, rngs=rngs)
+
+    def encode(self, images: Float[Array, "n h w"]) -> Float[Array, "n code"]:
+        return nnx.relu(self.encoder(images.reshape(images.shape[0], -1)))
+
+    def __call__(self, images: Float[Array, "n h w"]) -> Float[Array, "n h w"]:
+        return nnx.sigmoid(self.decoder(self.encode(images))).reshape(images.shape)
+
+
+class CAE(nnx.Module):
+    def __init__(self, spec: CAESpec, *, rngs: nnx.Rngs):
+        if len(spec.channels) != len(spec.kernel_sizes) or not spec.channels:
+            raise ValueError("CAE needs one kernel size per level and at least one level")
+        widths = (1, *spec.channels)
+        self.down = nnx.List(
+            nnx.Conv(widths[i], widths[i + 1], (k, k), padding="SAME", rngs=rngs)
+            for i, k in enumerate(spec.kernel_sizes)
+        )
+        self.to_code = nnx.Conv(widths[-1], spec.code_channels, (3, 3), padding="SAME", rngs=rngs)
+        self.from_code = nnx.Conv(spec.code_channels, widths[-1], (3, 3), padding="SAME", rngs=rngs)
+        # Up level i maps widths[i + 1] -> widths[i], mirroring down level i.
+        self.up = nnx.List(
+            nnx.Conv(widths[i + 1], widths[i], (k, k), padding="SAME", rngs=rngs)
+            for i, k in enumerate(spec.kernel_sizes)
+        )
+
+    def _code_map(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n hc wc c"]:
+        x = images if images.ndim == 4 else images[..., None]
+        for conv in self.down:
+            x = nnx.max_pool(nnx.relu(conv(x)), (2, 2), strides=(2, 2))
+        return nnx.relu(self.to_code(x))
+
+    def encode(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n code"]:
+        code = self._code_map(images)
+        return code.reshape(code.shape[0], -1)
+
+    def __call__(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n h w ..."]:
+        x = nnx.relu(self.from_code(self._code_map(images)))
+        for i in reversed(range(len(self.up))):
+            x = jnp.repeat(jnp.repeat(x, 2, axis=1), 2, axis=2)  # nearest up-sampling
+            x = self.up[i](x)
+            x = nnx.relu(x) if i > 0 else nnx.sigmoid(x)
+        return x.reshape(images.shape)
+
+
+Spec = FAESpec | CAESpec
+
+
+def build(spec: Spec, key: jax.Array, image_shape: Sequence[int] = IMAGE_SHAPE):
+    """(graphdef, params): the module split once; params is a nested dict of arrays."""
+    rngs = nnx.Rngs(params=key)
+    if isinstance(spec, FAESpec):
+        model = FAE(spec, int(jnp.prod(jnp.asarray(image_shape))), rngs=rngs)
+    else:
+        down = 2 ** len(spec.channels)
+        if image_shape[0] % down or image_shape[1] % down:
+            raise ValueError(f"CAE with {len(spec.channels)} levels needs image sides "
+                             f"divisible by {down}, got {tuple(image_shape)}")  # fmt: skip
+        model = CAE(spec, rngs=rngs)
+    graphdef, state = nnx.split(model)
+    return graphdef, nnx.to_pure_dict(state)
+
+
+def count_params(params) -> int:
+    return sum(int(x.size) for x in jax.tree.leaves(params))
+
+
+@functools.cache
+def make_encode(graphdef) -> Callable:
+    """The jitted ``encode(params, images) -> (n, code)`` for one architecture."""
+
+    @jax.jit
+    def encode(params, images: Float[Array, "n h w ..."]) -> Float[Array, "n code"]:
+        return nnx.merge(graphdef, params).encode(jnp.asarray(images, jnp.float32))
+
+    return encode
+
+
+@functools.cache
+def make_reconstruct(graphdef) -> Callable:
+    """The jitted ``reconstruct(params, images) -> images`` (decoder of the code)."""
+
+    @jax.jit
+    def reconstruct(params, images: Float[Array, "n h w ..."]) -> Float[Array, "n h w ..."]:
+        return nnx.merge(graphdef, params)(jnp.asarray(images, jnp.float32))
+
+    return reconstruct
+
+
+def reconstruction_loss(graphdef, params, images: Float[Array, "n h w ..."]) -> Float[Array, ""]:
+    """Mean squared error between images and their reconstructions."""
+    recon = nnx.merge(graphdef, params)(images)
+    return jnp.mean((recon - images) ** 2)
