@@ -156,7 +156,7 @@ def method_context(cfg: SweepConfig, logdir: Path, pair: str, log: RunLog) -> Me
     return MethodContext(
         checkpoint_dir=Path(cfg.train.checkpoint_dir).expanduser().resolve() / logdir.name / pair,
         training_log=lambda method: TrainingRun(logdir / pair / f"{method}_training", log),
-        identity={k: ident[k] for k in ("data", "split", "seed", "train")},
+        identity={k: ident[k] for k in ("data", "split", "seed")},  # + training settings
     )
 
 

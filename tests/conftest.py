@@ -11,7 +11,7 @@ REPO = Path(__file__).resolve().parent.parent
 # and tiny auto-encoders trained for two epochs.
 SMALL = ["data.n_frames=700", "split.n_train=300", "split.n_test=120", "split.gap=20",
          "removed_pcs=[0,5,20]", "fae.hidden=32", "cae.channels=[4,8]", "cae.code_channels=2",
-         "train.epochs=2"]
+         "train.epochs=2", "fae.epochs=2"]
 
 
 def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:

@@ -8,6 +8,7 @@ through the ``MethodContext`` the runner passes in.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import zlib
 from collections.abc import Callable, Iterable, Iterator
@@ -193,6 +194,9 @@ def run_autoencoder(
     name = f"{pair.db_season}-{pair.query_season}"
     spec = autoencoder_spec(method, cfg)
     train, val = split_validation(pair.train, 2, cfg.train.val_fraction)
+    epochs = getattr(cfg, method).epochs or cfg.train.epochs  # fae.epochs / cae.epochs first
+    settings = dataclasses.replace(cfg.train, epochs=epochs)
+    trained_by = {k: v for k, v in dataclasses.asdict(settings).items() if k != "checkpoint_dir"}
     log = ctx.training_log(method) if ctx.training_log else None
     try:
         result = fit_autoencoder(
@@ -200,9 +204,10 @@ def run_autoencoder(
             train,
             val,
             jax.random.fold_in(jax.random.key(cfg.seed), zlib.crc32(method.encode())),
-            cfg.train,
+            settings,
             checkpoint_dir=ctx.checkpoint_dir / method if ctx.checkpoint_dir else None,
-            identity={**(ctx.identity or {}), "season_pair": name, "method": method},
+            identity={**(ctx.identity or {}), "train": trained_by, "season_pair": name,
+                      "method": method},  # fmt: skip
             log=log,
             name=f"{name} {method}",
         )

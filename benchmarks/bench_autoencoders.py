@@ -1,0 +1,179 @@
+"""Auto-encoder speed: encode ms per image against the seed's Table 5, and training s per epoch.
+
+    python benchmarks/bench_autoencoders.py [--repeats 3] [--epoch-steps N]
+
+Models: FAE (2,048 -> 256 -> 2,048), the default CAE (channels 64, 128; kernels 5, 4; code
+channels 8: sized like CALC's encoder) and the quick preset's CAE (channels 16, 32; code
+channels 4), float32, initialised from jax.random.key(0) (speed does not depend on training).
+
+Encode: the database and the queries of the seed's test stretch (3,569 + 3,569 images of
+32x64), each season in one call, as the sweep does it (host numpy arrays in, device codes
+out). Warm median of --repeats runs (compilation excluded; the first call is reported
+separately). Peer: the seed's Table 5 on a GTX 1060, FAE 3.26 ms and CAE 17.5 ms per image;
+goal from the auto-encoder issue: ours <= 0.1x of it (FAE <= 0.326 ms, CAE <= 1.75 ms).
+
+Training: the seed's size, 4,500 images (2 x 2,500 training frames less each season's 10%
+validation tail, as the sweep splits them), batch 64 -> 70 steps per epoch, adam 1e-3, Table 2
+augmentation on; the jitted train_step over one shuffled epoch after one warm-up step (its
+compilation is reported separately). With --epoch-steps N < 70 only N steps are timed and the
+epoch is extrapolated. No peer: the seed reports training totals for the whole study only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from common import seed_route, timed
+
+from vpr_jax.config import TrainConfig
+from vpr_jax.data.augment import AugmentConfig
+from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.encoders.train import make_optimizer, make_train_step, split_validation
+
+MODELS = (  # name, spec, seed's Table 5 ms per image on a GTX 1060 (its peer)
+    ("FAE hidden 256", ae.FAESpec(), 3.26),
+    ("CAE default (64,128) c8", ae.CAESpec(), 17.5),
+    ("CAE quick (16,32) c4", ae.CAESpec(channels=(16, 32), code_channels=4), 17.5),
+)
+GOAL = 0.1  # ours / seed at most
+SEED_TRAINING = "FAE 3 h 44 min, CAE 7 h 56 min"  # the seed's totals for the whole study
+
+
+def encoder_params(params: dict) -> int:
+    """Parameters the code depends on (the encoder half)."""
+    if "encoder" in params:
+        return ae.count_params(params["encoder"])
+    return ae.count_params(params["down"]) + ae.count_params(params["to_code"])
+
+
+def flops(jitted, *args) -> float | None:
+    """XLA's flop count of one call (None where the backend gives none)."""
+    try:
+        cost = jitted.lower(*args).cost_analysis()
+    except Exception:  # noqa: BLE001 - the count is a nicety, never a reason to fail
+        return None
+    if isinstance(cost, list | tuple):
+        cost = cost[0] if cost else None
+    return float(cost["flops"]) if cost and cost.get("flops") else None
+
+
+def gflops(flop: float | None, seconds: float) -> str:
+    return f"{flop / seconds / 1e9:7.1f}" if flop else f"{'n/a':>7}"
+
+
+def bench_encode(spec, seed_ms: float, name: str, db: np.ndarray, query: np.ndarray,
+                 repeats: int) -> None:  # fmt: skip
+    graphdef, params = ae.build(spec, jax.random.key(0))
+    encode = ae.make_encode(graphdef)
+    first, warm = timed(lambda: (encode(params, db), encode(params, query)), repeats)
+    code = encode(params, db[:1]).shape[1]
+    shape = jax.ShapeDtypeStruct(db.shape, jnp.float32)
+    flop = flops(encode, params, shape)
+    flop = 2 * flop if flop else None  # database and queries
+    ms = 1000 * warm / (len(db) + len(query))
+    ratio = ms / seed_ms
+    met = "yes" if ratio <= GOAL else "NO"
+    print(f"{name:<24} {ae.count_params(params):>9,} {encoder_params(params):>9,} {code:>5} "
+          f"{first:8.2f} {max(first - warm, 0.0):8.2f} {warm:8.3f} {ms:9.4f} "
+          f"{gflops(flop, warm)} {seed_ms:8.2f} {ratio:7.4f}x {met:>4}")  # fmt: skip
+
+
+def bench_train(spec, name: str, images: np.ndarray, steps: int) -> None:
+    settings = TrainConfig()
+    graphdef, params = ae.build(spec, jax.random.key(0))
+    tx = make_optimizer(settings)
+    opt_state = tx.init(params)
+    train_step = make_train_step(graphdef, tx, AugmentConfig() if settings.augment else None)
+    key = jax.random.key(0)
+    n, b = len(images), settings.batch_size
+    per_epoch = n // b  # fit_autoencoder drops the tail: one compiled batch shape
+    steps = min(steps, per_epoch)
+    data = jnp.asarray(images)
+    order = jax.random.permutation(jax.random.fold_in(key, 0), n)
+
+    def batch(s: int) -> jax.Array:  # as fit_autoencoder draws it: a gather on the device
+        return data[order[s * b : (s + 1) * b]]
+
+    start = time.perf_counter()  # warm-up: compile the step (and the gather) on step 0
+    params, opt_state, metrics = jax.block_until_ready(
+        train_step(params, opt_state, batch(0), jax.random.fold_in(key, 1))
+    )
+    compile_s = time.perf_counter() - start
+    flop = flops(train_step, params, opt_state, batch(0), jax.random.fold_in(key, 1))
+
+    start = time.perf_counter()
+    for s in range(steps):
+        params, opt_state, metrics = train_step(params, opt_state, batch(s),
+                                                jax.random.fold_in(key, s + 2))  # fmt: skip
+    jax.block_until_ready((params, opt_state, metrics))
+    seconds = time.perf_counter() - start
+    epoch = seconds / steps * per_epoch
+    timed_note = f"{steps}/{per_epoch}" + ("" if steps == per_epoch else " (extrapolated)")
+    print(f"{name:<24} {timed_note:<20} {compile_s:8.2f} {seconds:8.2f} {epoch:9.2f} "
+          f"{per_epoch * b / epoch:9.0f} {gflops(flop and flop * steps, seconds)} "
+          f"{float(metrics['loss']):9.5f}")  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3, help="warm encode runs (median)")
+    parser.add_argument("--epoch-steps", type=int, default=None,
+                        help="training steps timed per model (default: the whole epoch, 70); "
+                        "fewer are extrapolated to the epoch")  # fmt: skip
+    args = parser.parse_args()
+    if args.epoch_steps is not None and args.epoch_steps < 1:
+        parser.error("--epoch-steps must be >= 1")
+    start = time.perf_counter()
+
+    train, db, query = seed_route()
+    shape = ae.IMAGE_SHAPE
+    db, query = db.reshape(len(db), *shape), query.reshape(len(query), *shape)
+    train_images, _ = split_validation(train.reshape(len(train), *shape), 2,
+                                       TrainConfig().val_fraction)  # fmt: skip
+    device = jax.devices()[0]
+    print(
+        f"jax {jax.__version__} on {device.platform} ({device.device_kind}); "
+        f"os.cpu_count() = {os.cpu_count()}; float32 images {shape[0]}x{shape[1]}\n"
+    )
+
+    print(
+        f"Encode {len(db):,} database + {len(query):,} query images, one call per season; "
+        f"warm median of {args.repeats}"
+    )
+    print(f"(peer: the seed's Table 5 on a GTX 1060; goal: ours <= {GOAL}x of it)")
+    print(f"{'model':<24} {'params':>9} {'encoder':>9} {'code':>5} {'first s':>8} "
+          f"{'compile':>8} {'warm s':>8} {'ms/image':>9} {'GFLOP/s':>7} {'seed ms':>8} "
+          f"{'ratio':>8} {'goal':>4}")  # fmt: skip
+    for name, spec, seed_ms in MODELS:
+        bench_encode(spec, seed_ms, name, db, query, args.repeats)
+    print(
+        "  compile = first call (compilation + one run) - warm run; "
+        "the quick CAE is compared with the seed's (default-sized) CAE"
+    )
+
+    settings = TrainConfig()
+    per_epoch = len(train_images) // settings.batch_size
+    steps = per_epoch if args.epoch_steps is None else args.epoch_steps
+    print(
+        f"\nTraining: {len(train_images):,} images, batch {settings.batch_size} "
+        f"({per_epoch} steps/epoch), {settings.optimizer} {settings.learning_rate:g}, "
+        f"augmentation {AugmentConfig()}"
+    )
+    print(f"{'model':<24} {'steps timed':<20} {'compile':>8} {'timed s':>8} {'s/epoch':>9} "
+          f"{'images/s':>9} {'GFLOP/s':>7} {'loss':>9}")  # fmt: skip
+    for name, spec, _ in MODELS:
+        bench_train(spec, name, train_images, steps)
+    print(
+        f"  no peer: the seed gives training totals for its whole study only "
+        f"({SEED_TRAINING}, GTX 1060)"
+    )
+    print(f"\ntotal {time.perf_counter() - start:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
