@@ -102,3 +102,13 @@ def test_same_key_same_weights_different_key_different_weights():
     leaves = list(zip(jax.tree.leaves(a), jax.tree.leaves(b), jax.tree.leaves(c), strict=True))
     assert all(np.array_equal(x, y) for x, y, _ in leaves)
     assert any(not np.array_equal(x, z) for x, _, z in leaves)
+
+
+def test_max_pool_2x2_equals_flax_max_pool_and_its_gradient_picks_the_maximum():
+    from flax import nnx
+
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(3, 8, 12, 5)).astype(np.float32))
+    np.testing.assert_array_equal(ae.max_pool_2x2(x), nnx.max_pool(x, (2, 2), strides=(2, 2)))
+    grad = jax.grad(lambda x: ae.max_pool_2x2(x).sum())(x)
+    want = jax.grad(lambda x: nnx.max_pool(x, (2, 2), strides=(2, 2)).sum())(x)
+    np.testing.assert_array_equal(grad, want)  # continuous data: no ties

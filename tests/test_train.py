@@ -18,7 +18,7 @@ from vpr_jax.errors import UserError
 from vpr_jax.tb import TrainingRun
 
 SPEC = ae.FAESpec(hidden=16)
-SETTINGS = TrainConfig(epochs=3, batch_size=32, patience=10)
+SETTINGS = TrainConfig(epochs=3, batch_size=32, patience=10, checkpoint_every_s=0)
 
 
 @pytest.fixture(scope="module")
@@ -134,6 +134,22 @@ def test_an_interrupted_run_resumes_at_its_saved_epoch_and_ends_as_an_uninterrup
     assert _train_steps(tb_dir, "loss/validation") == [
         steps_per_epoch * e for e in (1, 2, 3)
     ]
+
+
+def test_checkpoints_wait_checkpoint_every_s_but_the_last_epoch_is_always_saved(data, tmp_path):
+    from vpr_jax import checkpoints
+
+    train, val = data
+    rare = TrainConfig(epochs=3, batch_size=32, patience=10, checkpoint_every_s=3600)
+    folder = tmp_path / "rare"
+    cut = StopAt(2 * (len(train) // 32) + 3)  # in epoch 3: epochs 1 and 2 were not due
+    with pytest.raises(KeyboardInterrupt):
+        fit_autoencoder(SPEC, train, val, jax.random.key(5), rare, checkpoint_dir=folder, log=cut)
+    assert not checkpoints.has_checkpoint(folder)
+    result = fit_autoencoder(SPEC, train, val, jax.random.key(5), rare, checkpoint_dir=folder)
+    assert result.resumed_epoch == 0 and checkpoints.read_meta(folder)["epoch"] == 3
+    again = fit_autoencoder(SPEC, train, val, jax.random.key(5), rare, checkpoint_dir=folder)
+    assert again.restored and _equal(again.params, result.params)
 
 
 def test_early_stopping_keeps_the_best_parameters(data):

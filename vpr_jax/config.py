@@ -174,6 +174,10 @@ class TrainConfig:
     patience: int = 3  # epochs without a better validation loss before stopping
     augment: bool = True  # the seed's Table 2: horizontal flip, width/height shift 0.2
     checkpoint_dir: str = "checkpoints"  # models go to <this>/<logdir name>/<pair>/<method>/
+    # An epoch's checkpoint is written once this many seconds passed since the last one (and
+    # always for the last epoch): a killed run loses at most about this much training, and
+    # fast models (the FAE's epochs take half a second) do not spend their time saving.
+    checkpoint_every_s: float = 20.0
 
     def __post_init__(self):
         _check(self.epochs >= 1, f"train.epochs={self.epochs} must be >= 1")
@@ -188,6 +192,10 @@ class TrainConfig:
             f"train.val_fraction={self.val_fraction} must lie strictly between 0 and 1",
         )
         _check(self.patience >= 1, f"train.patience={self.patience} must be >= 1")
+        _check(
+            self.checkpoint_every_s >= 0,
+            f"train.checkpoint_every_s={self.checkpoint_every_s} must be >= 0 (0: every epoch)",
+        )
 
 
 @dataclass(frozen=True)
@@ -308,11 +316,16 @@ def _plain(value: Any) -> Any:
     return value
 
 
+# train.* keys that say where and how often models are saved, not what is trained.
+TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
+
+
 def identity(cfg: SweepConfig | dict) -> dict:
     """The part of a config (or of its saved YAML) that determines the numbers of every cell,
     as plain YAML data."""
     out = _plain(to_dict(cfg) if isinstance(cfg, SweepConfig) else cfg)
     out = {k: v for k, v in out.items() if k not in EXTENDABLE_KEYS}
     out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
-    out.get("train", {}).pop("checkpoint_dir", None)  # where models are kept, not what
+    for key in TRAIN_BOOKKEEPING:
+        out.get("train", {}).pop(key, None)
     return out

@@ -18,7 +18,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from vpr_jax.config import SweepConfig
+from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import ica, pca
 from vpr_jax.encoders.train import TrainingLog, fit_autoencoder, split_validation
@@ -196,7 +196,9 @@ def run_autoencoder(
     train, val = split_validation(pair.train, 2, cfg.train.val_fraction)
     epochs = getattr(cfg, method).epochs or cfg.train.epochs  # fae.epochs / cae.epochs first
     settings = dataclasses.replace(cfg.train, epochs=epochs)
-    trained_by = {k: v for k, v in dataclasses.asdict(settings).items() if k != "checkpoint_dir"}
+    trained_by = {
+        k: v for k, v in dataclasses.asdict(settings).items() if k not in TRAIN_BOOKKEEPING
+    }
     log = ctx.training_log(method) if ctx.training_log else None
     try:
         result = fit_autoencoder(

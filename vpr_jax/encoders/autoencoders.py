@@ -15,11 +15,16 @@ inside its own functions.
   down-sampling steps instead of three, since our images are 32x64, not 120x160:
   5x5x64, pool, 4x4x128, pool, 3x3x8 -> a 8x16x8 = 1,024-value code, 142k encoder
   parameters.
+
+Training speed on CPU: the CAE's wide convolutions take their kernel gradient from
+``encoders/conv.py`` (per-tap matrix products instead of XLA's slow gradient convolution)
+and pooling is a reshape and a max (``max_pool_2x2``); together about 2.5x faster per step.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -27,6 +32,8 @@ import jax
 import jax.numpy as jnp
 from flax import nnx
 from jaxtyping import Array, Float
+
+from vpr_jax.encoders.conv import conv_general_dilated
 
 IMAGE_SHAPE = (32, 64)
 
@@ -53,27 +60,41 @@ class FAE(nnx.Module):
         return nnx.sigmoid(self.decoder(self.encode(images))).reshape(images.shape)
 
 
+def max_pool_2x2(x: Float[Array, "n h w c"]) -> Float[Array, "n h2 w2 c"]:
+    """2x2 max-pooling, stride 2, as a reshape and a max: the same values as
+    ``nnx.max_pool(x, (2, 2), strides=(2, 2))`` on even sizes, and on CPU a gradient 2.3x
+    faster than reduce_window's select-and-scatter (measured at 32x64x64, batch 64)."""
+    n, h, w, c = x.shape
+    return x.reshape(n, h // 2, 2, w // 2, 2, c).max(axis=(2, 4))
+
+
+def _conv(n_in: int, n_out: int, k: int, rngs: nnx.Rngs) -> nnx.Conv:
+    """k x k, stride 1, SAME; its kernel gradient is fast on CPU (see encoders/conv.py)."""
+    return nnx.Conv(n_in, n_out, (k, k), padding="SAME", conv_general_dilated=conv_general_dilated,
+                    rngs=rngs)  # fmt: skip
+
+
 class CAE(nnx.Module):
     def __init__(self, spec: CAESpec, *, rngs: nnx.Rngs):
         if len(spec.channels) != len(spec.kernel_sizes) or not spec.channels:
             raise ValueError("CAE needs one kernel size per level and at least one level")
         widths = (1, *spec.channels)
         self.down = nnx.List(
-            nnx.Conv(widths[i], widths[i + 1], (k, k), padding="SAME", rngs=rngs)
+            _conv(widths[i], widths[i + 1], k, rngs)
             for i, k in enumerate(spec.kernel_sizes)
         )
-        self.to_code = nnx.Conv(widths[-1], spec.code_channels, (3, 3), padding="SAME", rngs=rngs)
-        self.from_code = nnx.Conv(spec.code_channels, widths[-1], (3, 3), padding="SAME", rngs=rngs)
+        self.to_code = _conv(widths[-1], spec.code_channels, 3, rngs)
+        self.from_code = _conv(spec.code_channels, widths[-1], 3, rngs)
         # Up level i maps widths[i + 1] -> widths[i], mirroring down level i.
         self.up = nnx.List(
-            nnx.Conv(widths[i + 1], widths[i], (k, k), padding="SAME", rngs=rngs)
+            _conv(widths[i + 1], widths[i], k, rngs)
             for i, k in enumerate(spec.kernel_sizes)
         )
 
     def _code_map(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n hc wc c"]:
         x = images if images.ndim == 4 else images[..., None]
         for conv in self.down:
-            x = nnx.max_pool(nnx.relu(conv(x)), (2, 2), strides=(2, 2))
+            x = max_pool_2x2(nnx.relu(conv(x)))
         return nnx.relu(self.to_code(x))
 
     def encode(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n code"]:
@@ -92,19 +113,34 @@ class CAE(nnx.Module):
 Spec = FAESpec | CAESpec
 
 
-def build(spec: Spec, key: jax.Array, image_shape: Sequence[int] = IMAGE_SHAPE):
-    """(graphdef, params): the module split once; params is a nested dict of arrays."""
+def _module(spec: Spec, key: jax.Array, image_shape: tuple[int, int]) -> FAE | CAE:
     rngs = nnx.Rngs(params=key)
     if isinstance(spec, FAESpec):
-        model = FAE(spec, int(jnp.prod(jnp.asarray(image_shape))), rngs=rngs)
-    else:
+        return FAE(spec, math.prod(image_shape), rngs=rngs)
+    return CAE(spec, rngs=rngs)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 2))
+def _init_params(spec: Spec, key: jax.Array, image_shape: tuple[int, int]) -> dict:
+    # One compiled program draws every initial weight, from an RBG key made of the given
+    # key's bits: XLA's CPU compiler takes about 10 s over threefry's unrolled rounds for the
+    # CAE's twelve weight arrays (jax 0.10.2, 2 cores) and about 1.5 s over RngBitGenerator.
+    # Same key, same weights on one backend; other backends may draw other weights.
+    bits = jax.random.key_data(key).reshape(-1)
+    rbg = jax.random.wrap_key_data(jnp.concatenate([bits, bits]), impl="rbg")
+    return nnx.to_pure_dict(nnx.state(_module(spec, rbg, image_shape)))
+
+
+def build(spec: Spec, key: jax.Array, image_shape: Sequence[int] = IMAGE_SHAPE):
+    """(graphdef, params): the module split once; params is a nested dict of arrays."""
+    image_shape = tuple(int(side) for side in image_shape)
+    if isinstance(spec, CAESpec):
         down = 2 ** len(spec.channels)
         if image_shape[0] % down or image_shape[1] % down:
             raise ValueError(f"CAE with {len(spec.channels)} levels needs image sides "
-                             f"divisible by {down}, got {tuple(image_shape)}")  # fmt: skip
-        model = CAE(spec, rngs=rngs)
-    graphdef, state = nnx.split(model)
-    return graphdef, nnx.to_pure_dict(state)
+                             f"divisible by {down}, got {image_shape}")  # fmt: skip
+    graphdef, _ = nnx.split(nnx.eval_shape(lambda: _module(spec, key, image_shape)))
+    return graphdef, _init_params(spec, key, image_shape)
 
 
 def count_params(params) -> int:

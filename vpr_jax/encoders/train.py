@@ -12,6 +12,7 @@ epoch's checkpoint continues exactly as the uninterrupted run would have.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -64,7 +65,9 @@ def make_optimizer(settings: TrainConfig) -> optax.GradientTransformation:
 
 
 def make_train_step(graphdef, tx: optax.GradientTransformation, augment: AugmentConfig | None):
-    """The jitted step for one architecture and optimizer."""
+    """The jitted step ``(params, opt_state, batch, key) -> (params, opt_state, metrics)``
+    for one architecture and optimizer; metrics: ``loss`` and the ``inputs`` it trained on
+    (the batch after augmentation)."""
 
     def loss_fn(params, batch):
         return ae.reconstruction_loss(graphdef, params, batch)
@@ -75,9 +78,19 @@ def make_train_step(graphdef, tx: optax.GradientTransformation, augment: Augment
             batch = augment_batch(key, batch, augment)
         loss, grads = jax.value_and_grad(loss_fn)(params, batch)
         updates, opt_state = tx.update(grads, opt_state, params)
-        return optax.apply_updates(params, updates), opt_state, {"loss": loss}
+        # The augmented batch stays on the device unless the caller fetches it (TensorBoard
+        # shows the first one); it is the same graph's output, so nothing compiles twice.
+        return optax.apply_updates(params, updates), opt_state, {"loss": loss, "inputs": batch}
 
     return train_step
+
+
+@functools.partial(jax.jit, static_argnums=3)
+def take_batch(data: Array, order: Array, index: Array, batch_size: int) -> Array:
+    """Batch ``index`` of an epoch: ``data[order[index * b : (index + 1) * b]]``, compiled
+    once (a Python slice with a new start would compile a new program per step)."""
+    picks = jax.lax.dynamic_slice_in_dim(order, index * batch_size, batch_size)
+    return data[picks]
 
 
 def make_eval_loss(graphdef, batch_size: int) -> Callable:
@@ -145,7 +158,8 @@ def fit_autoencoder(
 ) -> TrainResult:
     """Train (or resume, or restore) one auto-encoder; returns its best parameters.
 
-    With ``checkpoint_dir``, every epoch is committed there: a finished model is restored,
+    With ``checkpoint_dir``, an epoch is committed there once ``checkpoint_every_s`` seconds
+    passed since the last save, and the last epoch always is: a finished model is restored,
     an unfinished one resumes after its last saved epoch. ``identity`` (JSON data) must
     match the checkpoint's, so a model of other data or settings is never reused.
     """
@@ -197,26 +211,27 @@ def fit_autoencoder(
     if log is not None:
         log.begin(step)
 
-    stopped_early = False
+    stopped_early, last_save = False, time.perf_counter()
     for epoch in range(resumed_epoch + 1, settings.epochs + 1):
         epoch_key = jax.random.fold_in(key, epoch)
         order = jax.random.permutation(jax.random.fold_in(epoch_key, 0), n)
-        losses = []
+        losses = []  # on the device until the epoch ends: no wait between steps
         with Bar(steps_per_epoch, f"{name} epoch {epoch}/{settings.epochs}") as bar:
             for s in range(steps_per_epoch):
-                batch = train_dev[order[s * batch_size : (s + 1) * batch_size]]
+                batch = take_batch(train_dev, order, s, batch_size)
                 params, opt_state, metrics = train_step(
                     params, opt_state, batch, jax.random.fold_in(epoch_key, s + 1)
                 )
-                step += 1
                 losses.append(metrics["loss"])
-                if log is not None:
-                    log.scalar("loss/train", float(metrics["loss"]), step)
-                    if epoch == 1 and s == 0 and settings.augment:
-                        shown = augment_batch(jax.random.fold_in(epoch_key, 1), batch,
-                                              AugmentConfig())  # fmt: skip
-                        log.images("inputs/augmented", _examples(np.asarray(shown), 8), step)
+                if log is not None and epoch == 1 and s == 0 and settings.augment:
+                    shown = np.asarray(metrics["inputs"])
+                    log.images("inputs/augmented", _examples(shown, 8), step + 1)
                 bar.advance()
+        losses = np.asarray(jnp.stack(losses)) if losses else np.zeros(0)
+        if log is not None:
+            for i, loss in enumerate(losses):
+                log.scalar("loss/train", float(loss), step + 1 + i)
+        step += len(losses)
         val = eval_loss(params, val_images)
         if val < best_val:
             best_params, best_val, bad_epochs = params, val, 0
@@ -224,7 +239,7 @@ def fit_autoencoder(
             bad_epochs += 1
         stopped_early = bad_epochs >= settings.patience and epoch < settings.epochs
         done = stopped_early or epoch == settings.epochs
-        train_loss = float(jnp.mean(jnp.stack(losses))) if losses else math.nan
+        train_loss = float(np.mean(losses)) if len(losses) else math.nan
         if log is not None:
             log.scalar("loss/validation", val, step)
             shown = _examples(val_images, 6)
@@ -234,12 +249,14 @@ def fit_autoencoder(
             log.line(f"{name} epoch {epoch}/{settings.epochs}: train loss {train_loss:.5f}  "
                      f"validation loss {val:.5f}{best}")  # fmt: skip
         seconds = spent + time.perf_counter() - start
-        if checkpoint_dir is not None:
+        due = time.perf_counter() - last_save >= settings.checkpoint_every_s
+        if checkpoint_dir is not None and (due or done):
             meta = {**meta_base, "epoch": epoch, "step": step, "best_val_loss": best_val,
                     "bad_epochs": bad_epochs, "done": done, "stopped_early": stopped_early,
                     "train_seconds": seconds}  # fmt: skip
             checkpoints.save(checkpoint_dir, epoch, {"params": params, "opt_state": opt_state},
                              best_params, meta)  # fmt: skip
+            last_save = time.perf_counter()
         if done:
             break
     return TrainResult(graphdef, best_params, epoch, step, best_val, stopped_early, False,
