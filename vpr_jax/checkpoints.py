@@ -1,6 +1,8 @@
 """Training checkpoints on disk (orbax): the only module that talks to orbax.
 
-One folder per trained model, one orbax step per finished epoch, the last two kept.
+One folder per trained model, one orbax step per saved epoch (the training loop saves at
+most every ``train.checkpoint_every_s`` seconds, and always the last epoch), the last two
+kept.
 Each step holds three items:
 - ``train``: what resuming needs (``params``, ``opt_state``), restored against a target so
   optax states keep their types;
