@@ -106,6 +106,16 @@ def _top_k_blocks(
     return scores, idx
 
 
+@functools.partial(jax.jit, static_argnames=("k", "block_size", "starts"))
+def _top_k_query_blocks(query_blocks, db_blocks, n_db, k, block_size, starts):
+    """``_top_k_blocks`` for each query block in turn (``lax.map``: one block's scores in
+    memory at a time), in one compiled program: a Python loop over query blocks would
+    compile again for a shorter last block."""
+    return jax.lax.map(
+        lambda q: _top_k_blocks(q, db_blocks, n_db, k, block_size, starts), query_blocks
+    )
+
+
 def top_k_matches(
     query_desc: Float[Array, "nq d"],
     db_desc: Float[Array, "ndb d"],
@@ -138,11 +148,15 @@ def top_k_matches(
     n_blocks = -(-n_db // block_size)
     padded = jnp.pad(db_desc, ((0, n_blocks * block_size - n_db), (0, 0)))
     db_blocks = padded.reshape(n_blocks, block_size, d)
-    scores, indices = [], []
-    for lo in range(0, query_desc.shape[0], query_block_size):
-        s, i = _top_k_blocks(
-            query_desc[lo : lo + query_block_size], db_blocks, n_db, k, block_size, starts
-        )
-        scores.append(np.asarray(s))
-        indices.append(np.asarray(i))
-    return np.concatenate(scores, axis=1), np.concatenate(indices, axis=1)
+    nq = query_desc.shape[0]
+    query_block_size = min(query_block_size, nq)
+    n_query_blocks = -(-nq // query_block_size)
+    query_blocks = jnp.pad(query_desc, ((0, n_query_blocks * query_block_size - nq), (0, 0)))
+    scores, indices = _top_k_query_blocks(
+        query_blocks.reshape(n_query_blocks, query_block_size, d), db_blocks, n_db, k,
+        block_size, starts,
+    )  # fmt: skip
+    # (query blocks, starts, block, k) -> (starts, queries, k), padding queries dropped
+    scores = np.asarray(scores).transpose(1, 0, 2, 3).reshape(len(starts), -1, k)[:, :nq]
+    indices = np.asarray(indices).transpose(1, 0, 2, 3).reshape(len(starts), -1, k)[:, :nq]
+    return scores, indices

@@ -87,13 +87,19 @@ def _images(vectors: np.ndarray, pair: PairData) -> np.ndarray:
     return np.asarray(vectors).reshape(len(vectors), *pair.train.shape[1:])
 
 
+@jax.jit
+def _centred(images, mean):
+    """Raw descriptor: flattened pixels minus the training mean (compiled once per shape)."""
+    return pca.flatten(images) - mean
+
+
 def run_raw(
     pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig, ctx: MethodContext
 ) -> list[CellOutput]:
     """Raw pixels, centred with the training mean; cosine does the L2 normalisation."""
     del removed_pcs, ctx
     mean, fit_s = _timed(lambda x: jax.numpy.mean(pca.flatten(x), axis=0), pair.train)
-    db, query, ms = _encode_ms(jax.jit(lambda x: pca.flatten(x) - mean), pair)
+    db, query, ms = _encode_ms(lambda x: _centred(x, mean), pair)
     scores, idx = top_k_matches(query, db, TOP_K, block_size=cfg.matching.block_size)
     return [CellOutput("raw", 0, scores[0], idx[0], fit_s, ms, None)]
 

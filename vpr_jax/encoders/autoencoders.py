@@ -148,6 +148,7 @@ def count_params(params) -> int:
 
 
 @functools.cache
+@functools.lru_cache(maxsize=32)  # one jitted function (and compilation) per architecture
 def make_encode(graphdef) -> Callable:
     """The jitted ``encode(params, images) -> (n, code)`` for one architecture."""
 
@@ -159,6 +160,7 @@ def make_encode(graphdef) -> Callable:
 
 
 @functools.cache
+@functools.lru_cache(maxsize=32)  # one jitted function (and compilation) per architecture
 def make_reconstruct(graphdef) -> Callable:
     """The jitted ``reconstruct(params, images) -> images`` (decoder of the code)."""
 

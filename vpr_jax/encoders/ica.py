@@ -183,13 +183,16 @@ def resolve_n_components(
     return n
 
 
-@functools.partial(jax.jit, static_argnames=("removed_pcs", "n_components"))
+@functools.partial(jax.jit, static_argnames=("n_components",))
 def whitening_matrix(
-    state: pca.PCAState, n_samples: int | Int[Array, ""], removed_pcs: int, n_components: int
-) -> Float[Array, "c d"]:
-    """Rows: PCA components k..k+c-1 over their population standard deviation."""
-    comps = state.components[removed_pcs : removed_pcs + n_components]
-    var = state.explained_variance[removed_pcs : removed_pcs + n_components]
+    state: pca.PCAState, n_samples: int | Int[Array, ""], removed_pcs: int | Int[Array, ""],
+    n_components: int,
+) -> Float[Array, "c d"]:  # fmt: skip
+    """Rows: PCA components k..k+c-1 over their population standard deviation.
+
+    ``removed_pcs`` is traced: a sweep over k compiles this once per component count."""
+    comps = lax.dynamic_slice_in_dim(state.components, removed_pcs, n_components)
+    var = lax.dynamic_slice_in_dim(state.explained_variance, removed_pcs, n_components)
     return comps * lax.rsqrt(var * (n_samples - 1) / n_samples)[:, None]
 
 

@@ -59,11 +59,17 @@ class TrainingLog(Protocol):
 
 
 def make_optimizer(settings: TrainConfig) -> optax.GradientTransformation:
-    if settings.optimizer not in OPTIMIZERS:
-        raise ValueError(f"unknown optimizer {settings.optimizer!r}: use {', '.join(OPTIMIZERS)}")
-    return OPTIMIZERS[settings.optimizer](settings.learning_rate)
+    return _optimizer(settings.optimizer, settings.learning_rate)
 
 
+@functools.lru_cache(maxsize=32)  # the same object for the same settings: see make_train_step
+def _optimizer(name: str, learning_rate: float) -> optax.GradientTransformation:
+    if name not in OPTIMIZERS:
+        raise ValueError(f"unknown optimizer {name!r}: use {', '.join(OPTIMIZERS)}")
+    return OPTIMIZERS[name](learning_rate)
+
+
+@functools.lru_cache(maxsize=32)  # per architecture: season pairs share compilations
 def make_train_step(graphdef, tx: optax.GradientTransformation, augment: AugmentConfig | None):
     """The jitted step ``(params, opt_state, batch, key) -> (params, opt_state, metrics)``
     for one architecture and optimizer; metrics: ``loss`` and the ``inputs`` it trained on
@@ -93,6 +99,7 @@ def take_batch(data: Array, order: Array, index: Array, batch_size: int) -> Arra
     return data[picks]
 
 
+@functools.lru_cache(maxsize=32)  # per architecture: season pairs share compilations
 def make_eval_loss(graphdef, batch_size: int) -> Callable:
     """Mean reconstruction loss over any number of images, in fixed-size batches."""
 
