@@ -135,15 +135,18 @@ def check_removed_pcs(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> N
         )
 
 
-def pair_data(route: Route, split: Split, db: str, query: str) -> PairData:
+def pair_data(route: Route, split: Split, db: str, query: str, database: str) -> PairData:
+    """Images of one pair; ``database="all"`` matches the queries against every frame of the
+    database season (training places included), not only its test places."""
     images = route.images
+    db_positions = split.test if database == "test" else np.arange(len(route))
     return PairData(
         db_season=db,
         query_season=query,
         train=np.concatenate([images[db][split.train], images[query][split.train]]),
-        db=images[db][split.test],
+        db=images[db][db_positions],
         query=images[query][split.test],
-        db_ids=route.frame_ids[split.test],
+        db_ids=route.frame_ids[db_positions],
         query_ids=route.frame_ids[split.test],
         fits={},
     )
@@ -276,7 +279,7 @@ def run_sweep(cfg: SweepConfig) -> Path:
                 if not pending:
                     continue
                 if data is None:
-                    data = pair_data(route, split, db, query)
+                    data = pair_data(route, split, db, query, cfg.split.database)
                 for out in METHODS[method](data, pending, cfg, ctx):
                     # A run left by a crash before its row was written is redone.
                     shutil.rmtree(logdir / run_name(pair, method, out.removed_pcs), True)

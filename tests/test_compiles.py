@@ -7,7 +7,8 @@ import subprocess
 import sys
 
 import pytest
-from conftest import REPO, SMALL
+
+from tests.conftest import REPO, SMALL
 
 BASE = [k for k in SMALL if not k.startswith(("removed_pcs", "train.epochs", "fae.epochs"))]
 # Four database blocks and a padded last query block (120 test places per season).

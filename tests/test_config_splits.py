@@ -62,3 +62,39 @@ def test_fraction_split_tests_everything_after_the_gap():
 def test_split_that_does_not_fit_says_what_to_change():
     with pytest.raises(UserError, match="split.n_train"):
         make_split(np.arange(300), SplitConfig(n_train=250, n_test=100, gap=10))
+
+
+def _brute_force_sections(frame_ids, n_sections, length, gap):
+    n = len(frame_ids)
+    test = []
+    for i in range(n_sections):
+        start = round((i + 0.5) * n / n_sections - length / 2)
+        test += list(range(start, start + length))
+    train = [p for p in range(n) if all(abs(frame_ids[p] - frame_ids[t]) > gap for t in test)]
+    return np.array(train), np.array(test)
+
+
+@pytest.mark.parametrize("step", [1, 3])
+def test_olid_sections_match_a_brute_force_partition(step):
+    frame_ids = np.arange(1, 3001 * step, step)[:3000]
+    split = make_split(frame_ids, SplitConfig(test_sections=3, n_test=115, gap=20 * step))
+    train, test = _brute_force_sections(frame_ids, 3, 115, 20 * step)
+    np.testing.assert_array_equal(split.test, test)
+    np.testing.assert_array_equal(split.train, train)
+    assert len(test) == 345 and len(set(split.train) & set(split.test)) == 0
+    # every training frame is more than the gap from every test frame, and nothing else drops
+    assert len(train) == 3000 - 345 - 3 * 2 * 20
+
+
+def test_sections_that_do_not_fit_are_one_line_errors():
+    with pytest.raises(UserError, match="do not fit"):
+        make_split(np.arange(1000), SplitConfig(test_sections=3, n_test=300, gap=50))
+    with pytest.raises(UserError, match="leave 0 training frames"):
+        make_split(np.arange(100), SplitConfig(test_sections=1, n_test=98, gap=10))
+
+
+def test_full_preset_is_the_whole_route_with_olid_sections():
+    cfg = parse_config(["preset=full"])
+    assert cfg.data.n_frames == 35768 and cfg.data.frame_step == 1
+    assert (cfg.split.test_sections, cfg.split.n_test, cfg.split.gap) == (3, 1150, 200)
+    assert cfg.split.database == "all"

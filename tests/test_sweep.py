@@ -170,3 +170,31 @@ def test_pixel_output_gives_the_same_metrics(small_sweep, tmp_path):
     for r in read_results(tmp_path / "results.csv"):
         assert r["recall_at_1"] == pytest.approx(coeff[r["run"]]["recall_at_1"], abs=0.01)
         assert np.isfinite(r["encode_ms_per_image"])
+
+
+def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path):
+    from vpr_jax.config import SplitConfig
+    from vpr_jax.data.splits import make_split
+    from vpr_jax.data.synthetic import synthetic_route
+
+    logdir = tmp_path / "sections"
+    split_keys = ["split.test_sections=2", "split.n_test=60", "split.gap=20", "split.database=all"]
+    proc = run_cli(*[k for k in SMALL if not k.startswith("split.")], *split_keys,
+                   "methods=[raw]", "season_pairs=summer-fall", f"logdir={logdir}")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    (row,) = read_results(logdir / "results.csv")
+    assert row["n_test"] == 120 and row["n_train"] == 2 * (700 - 120 - 4 * 20)
+
+    # Oracle: numpy brute force over every frame of the database season.
+    route = synthetic_route(700, ("summer", "fall"), 0)
+    split = make_split(route.frame_ids, SplitConfig(test_sections=2, n_test=60, gap=20))
+    flat = {s: route.images[s].reshape(700, -1).astype(np.float64) for s in ("summer", "fall")}
+    mean = np.concatenate([flat["summer"][split.train], flat["fall"][split.train]]).mean(0)
+    db = flat["summer"] - mean
+    query = flat["fall"][split.test] - mean
+    scores = (query / np.linalg.norm(query, axis=1, keepdims=True)) @ (
+        db / np.linalg.norm(db, axis=1, keepdims=True)
+    ).T
+    best = route.frame_ids[np.argmax(scores, axis=1)]
+    correct = np.abs(best - route.frame_ids[split.test]) <= row["tolerance"]
+    assert row["recall_at_1"] == pytest.approx(correct.mean(), abs=1 / 120 + 1e-9)

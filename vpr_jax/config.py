@@ -70,13 +70,17 @@ class SplitConfig:
 
     Counts (the seed's protocol): the first ``n_train`` frames train, the next ``n_test``
     after the gap test. Setting ``train_fraction`` switches to fractions: that share of the
-    route trains and everything after the gap tests.
+    route trains and everything after the gap tests. Setting ``test_sections`` switches to
+    Olid et al.'s partition of the whole route: that many test sections of ``n_test``
+    frames, evenly spread, and every frame more than ``gap`` frames from all of them trains.
     """
 
     n_train: int = 2500  # training images per season (the pair contributes 2 x n_train)
-    n_test: int = 450  # test images per season: the database and the queries
+    n_test: int = 450  # test images per season (with test_sections: per section)
     train_fraction: float | None = None  # e.g. 0.5; overrides n_train/n_test when set
-    gap: int = 100  # original frame indices between the last training and first test frame
+    gap: int = 100  # original frame indices between training and test frames
+    test_sections: int = 0  # > 0: Olid-style sections (n_train and train_fraction unused)
+    database: str = "test"  # test: the database is the test places; all: every frame loaded
 
     def __post_init__(self):
         _check(self.n_train >= 1, f"split.n_train={self.n_train} must be >= 1")
@@ -84,6 +88,11 @@ class SplitConfig:
         _check(self.gap >= 0, f"split.gap={self.gap} must be >= 0")
         _check(self.train_fraction is None or 0 < self.train_fraction < 1,
                f"split.train_fraction={self.train_fraction} must lie strictly between 0 and 1")
+        _check(self.test_sections >= 0, f"split.test_sections={self.test_sections} must be >= 0")
+        _check(
+            self.database in ("test", "all"),
+            f"split.database={self.database} is unknown: use test or all",
+        )
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,8 @@ class Split(NamedTuple):
 
 
 def make_split(frame_ids: np.ndarray, cfg: SplitConfig) -> Split:
+    if cfg.test_sections > 0:
+        return _sections(np.asarray(frame_ids), cfg.test_sections, cfg.n_test, cfg.gap)
     n = len(frame_ids)
     n_train = round(cfg.train_fraction * n) if cfg.train_fraction is not None else cfg.n_train
     if not 2 <= n_train < n:
@@ -34,3 +36,32 @@ def make_split(frame_ids: np.ndarray, cfg: SplitConfig) -> Split:
             f"{cfg.gap} frames + {n_test} test: lower split.n_train / split.n_test / split.gap "
             "or load more frames (data.n_frames, data.frame_step)")
     return Split(np.arange(n_train), np.arange(first_test, first_test + n_test))
+
+
+def _sections(frame_ids: np.ndarray, n_sections: int, length: int, gap: int) -> Split:
+    """Olid et al.'s partition: ``n_sections`` test sections of ``length`` frames centred at
+    (i + 1/2) / n_sections of the route; training = every frame more than ``gap`` original
+    frame indices away from every test frame."""
+    n = len(frame_ids)
+    starts = [round((i + 0.5) * n / n_sections - length / 2) for i in range(n_sections)]
+    ends = [start + length for start in starts]
+    inside = length >= 1 and starts[0] >= 0 and ends[-1] <= n
+    if not inside or any(
+        frame_ids[b] - frame_ids[e - 1] <= 2 * gap
+        for e, b in zip(ends[:-1], starts[1:], strict=True)
+    ):  # every section needs its gap on both sides clear of the next one
+        raise UserError(
+            f"{n_sections} test sections of {length} frames with {gap}-frame gaps do not fit "
+            f"in a route of {n} frames: lower split.test_sections / split.n_test / split.gap "
+            "or load more frames"
+        )
+    test = np.concatenate([np.arange(a, b) for a, b in zip(starts, ends, strict=True)])
+    lo = np.searchsorted(frame_ids[test], frame_ids - gap, side="left")
+    near = (lo < len(test)) & (frame_ids[test][np.minimum(lo, len(test) - 1)] <= frame_ids + gap)
+    train = np.flatnonzero(~near)
+    if len(train) < 2:
+        raise UserError(
+            f"{n_sections} test sections of {length} frames with {gap}-frame gaps leave "
+            f"{len(train)} training frames: lower split.n_test or split.gap"
+        )
+    return Split(train, test)
