@@ -139,14 +139,14 @@ def pair_data(route: Route, split: Split, db: str, query: str, database: str) ->
     """Images of one pair; ``database="all"`` matches the queries against every frame of the
     database season (training places included), not only its test places."""
     images = route.images
-    db_positions = split.test if database == "test" else np.arange(len(route))
+    everything = database == "all"  # the season's own array: no copy of the whole route
     return PairData(
         db_season=db,
         query_season=query,
         train=np.concatenate([images[db][split.train], images[query][split.train]]),
-        db=images[db][db_positions],
+        db=images[db] if everything else images[db][split.test],
         query=images[query][split.test],
-        db_ids=route.frame_ids[db_positions],
+        db_ids=route.frame_ids if everything else route.frame_ids[split.test],
         query_ids=route.frame_ids[split.test],
         fits={},
     )

@@ -7,6 +7,7 @@ written once at the root, and each run's hparams go into that run's own writer, 
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -111,7 +112,11 @@ class TrainingRun:
 
     def begin(self, step: int) -> None:
         self._run_dir.mkdir(parents=True, exist_ok=True)
-        self._writer = SummaryWriter(str(self._run_dir), purge_step=step + 1)
+        # tensorboardX names event files by the second: a session resumed within the same
+        # second would truncate the killed session's file. The nanosecond suffix keeps
+        # both, in the order they were written.
+        self._writer = SummaryWriter(str(self._run_dir), purge_step=step + 1,
+                                     filename_suffix=f".{time.time_ns()}")  # fmt: skip
 
     def scalar(self, tag: str, value: float, step: int) -> None:
         self._writer.add_scalar(tag, float(value), global_step=step)

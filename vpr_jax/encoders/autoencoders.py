@@ -147,8 +147,7 @@ def count_params(params) -> int:
     return sum(int(x.size) for x in jax.tree.leaves(params))
 
 
-@functools.cache
-@functools.lru_cache(maxsize=32)  # one jitted function (and compilation) per architecture
+@functools.cache  # one jitted function (and compilation) per architecture
 def make_encode(graphdef) -> Callable:
     """The jitted ``encode(params, images) -> (n, code)`` for one architecture."""
 
@@ -159,8 +158,7 @@ def make_encode(graphdef) -> Callable:
     return encode
 
 
-@functools.cache
-@functools.lru_cache(maxsize=32)  # one jitted function (and compilation) per architecture
+@functools.cache  # one jitted function (and compilation) per architecture
 def make_reconstruct(graphdef) -> Callable:
     """The jitted ``reconstruct(params, images) -> images`` (decoder of the code)."""
 
