@@ -6,7 +6,7 @@ VPR_Tutorial builds it, a per-query argmax, and a Python loop over thresholds an
 
 from __future__ import annotations
 
-import time
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -503,8 +503,9 @@ def test_has_true_match_against_brute_force():
     np.testing.assert_array_equal(correct_matches(idx, qids, dids, 2), expected)
 
 
-def test_route_sized_top_k_is_fast_and_exact():
-    """35,768-frame database, 3,569 queries: no (Nq, Ndb) matrix is needed or built."""
+def test_route_sized_top_k_is_exact_without_a_dense_matrix():
+    """35,768-frame database, 3,569 queries: no (Nq, Ndb) matrix is needed or built (its
+    speed against a dense numpy peer is in benchmarks/bench_linear.py)."""
     rng = np.random.default_rng(0)
     ndb, nq, k = 35_768, 3_569, 10
     dids = rng.permutation(ndb) + 1
@@ -514,9 +515,14 @@ def test_route_sized_top_k_is_fast_and_exact():
     true_idx = position[qids]
     idx = np.where(rng.random((nq, k)) < 0.3, true_idx[:, None], rng.integers(0, ndb, (nq, k)))
     scores = -np.sort(-rng.random((nq, k)), axis=1)
-    t0 = time.perf_counter()
-    ev = evaluate_top_k(scores, idx, qids, dids, 2)
-    assert time.perf_counter() - t0 < 5.0
+    tracemalloc.start()
+    try:
+        ev = evaluate_top_k(scores, idx, qids, dids, 2)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    # A dense (Nq, Ndb) boolean ground truth alone would take nq * ndb bytes (128 MB).
+    assert peak < nq * ndb // 8, peak
     assert ev.has_match.all()
     sub = rng.choice(nq, 50, replace=False)
     for q in sub:
