@@ -3,6 +3,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -35,3 +36,10 @@ def small_sweep(tmp_path_factory):
     proc = run_cli(*SMALL, f"logdir={logdir}")
     assert proc.returncode == 0, proc.stderr
     return logdir, proc
+
+
+def numpy_cosine(q, d):
+    """The oracle for cosine similarity: (n_queries, n_db), rows and columns L2-normalised."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return q @ d.T

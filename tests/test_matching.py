@@ -3,13 +3,8 @@
 import numpy as np
 import pytest
 
+from tests.conftest import numpy_cosine as _numpy_cosine
 from vpr_jax.matching import cosine_similarity, suffix_cosine, top_k_matches
-
-
-def _numpy_cosine(q, d):
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    return q @ d.T
 
 
 def test_cosine_matches_numpy_and_is_queries_by_database():

@@ -139,7 +139,7 @@ class FAEConfig:
     """One-hidden-layer auto-encoder: 2,048 pixels -> hidden (ReLU) -> 2,048 (sigmoid)."""
 
     hidden: int = 256  # code length: the place descriptor
-    epochs: int | None = None  # overrides train.epochs for the FAE (it trains ~50x faster)
+    epochs: int | None = None  # overrides train.epochs for the FAE (it trains ~100x faster)
 
     def __post_init__(self):
         _check(self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1")
