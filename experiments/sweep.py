@@ -19,10 +19,12 @@ import tempfile
 from pathlib import Path
 
 import cv2
+import jax
 import numpy as np
+from jax.sharding import Mesh
 from omegaconf import OmegaConf
 
-from vpr_jax.config import SweepConfig, identity, parse_config, to_dict
+from vpr_jax.config import MeshConfig, SweepConfig, identity, parse_config, to_dict
 from vpr_jax.data import SEASON_ORDER, Route, load_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
@@ -37,6 +39,7 @@ from vpr_jax.results import (
     markdown_table,
     read_results,
 )
+from vpr_jax.sharding import make_mesh, mesh_size
 from vpr_jax.tb import TrainingRun, match_examples, write_cell_run, write_experiment_config
 
 METRIC_KEYS = ("recall_at_1", "precision_at_full_recall", "auc_pr", "recall_at_100_precision",
@@ -152,15 +155,44 @@ def pair_data(route: Route, split: Split, db: str, query: str, database: str) ->
     )
 
 
-def method_context(cfg: SweepConfig, logdir: Path, pair: str, log: RunLog) -> MethodContext:
+def method_context(
+    cfg: SweepConfig, logdir: Path, out: Path, pair: str, log: RunLog, mesh: Mesh | None
+) -> MethodContext:
     """Checkpoints under <train.checkpoint_dir>/<logdir name>/<pair>/<method>/; a training
-    run per auto-encoder next to its cell's run."""
+    run per auto-encoder next to its cell's run (under ``out``, where this process writes)."""
     ident = identity(cfg)
     return MethodContext(
         checkpoint_dir=Path(cfg.train.checkpoint_dir).expanduser().resolve() / logdir.name / pair,
-        training_log=lambda method: TrainingRun(logdir / pair / f"{method}_training", log),
+        training_log=lambda method: TrainingRun(out / pair / f"{method}_training", log),
         identity={k: ident[k] for k in ("data", "split", "seed")},  # + training settings
+        mesh=mesh,
     )
+
+
+def start_devices(cfg: MeshConfig, log: RunLog) -> Mesh | None:
+    """Join the other processes (``mesh.distributed``), then build the device mesh."""
+    if cfg.distributed:
+        # CPU devices of several processes talk through gloo; GPUs use NCCL regardless.
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+        try:
+            jax.distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
+        except (RuntimeError, ValueError) as err:
+            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise UserError(
+                f"mesh.distributed=true could not join the other processes ({first}): start "
+                "one process per host under a launcher JAX detects (SLURM, Open MPI), or set "
+                "mesh.coordinator=HOST:PORT, mesh.num_processes and mesh.process_id"
+            ) from None
+    try:
+        mesh = make_mesh(cfg.devices)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    if mesh is not None:
+        devices = mesh.devices.flat
+        log(f"mesh: {mesh_size(mesh)} {devices[0].platform} devices in "
+            f"{jax.process_count()} process(es); PCA samples, matching database and "
+            "training batches are split over them")  # fmt: skip
+    return mesh
 
 
 def run_name(pair: str, method: str, k: int) -> str:
@@ -242,22 +274,34 @@ def run_sweep(cfg: SweepConfig) -> Path:
     log = RunLog()
     logdir = Path(cfg.logdir).expanduser().resolve()
     pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
+    mesh = start_devices(cfg.mesh, log)
     prepare_logdir(logdir, cfg)
+    # With several processes all compute, process 0 writes the logdir; the others read it
+    # (shared file system) to agree on what is left, and write to a folder they delete.
+    primary = jax.process_index() == 0
+    out = logdir if primary else Path(tempfile.mkdtemp(prefix="vpr_jax-replica-"))
+    try:
+        return _run_cells(cfg, log, logdir, out, pairs, mesh)
+    finally:
+        if not primary:
+            shutil.rmtree(out, ignore_errors=True)
 
+
+def _run_cells(cfg: SweepConfig, log: RunLog, logdir: Path, out: Path, pairs, mesh) -> Path:
     route = load_route(cfg.data, cfg.seed, log)
     split = make_split(route.frame_ids, cfg.split)
     check_removed_pcs(cfg, 2 * len(split.train), int(np.prod(route.images[pairs[0][0]].shape[1:])))
 
     # Validation is over: from here on the logdir is written.
-    atomic_write_text(logdir / "config.yaml", OmegaConf.to_yaml(to_dict(cfg)))
-    log.open(logdir / "sweep.log")
-    shutil.rmtree(logdir / INCOMPLETE, ignore_errors=True)
+    atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(to_dict(cfg)))
+    log.open(out / "sweep.log")
+    shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
     log(f"sweep: {len(route)} frames per season, {len(split.train)} training and "
         f"{len(split.test)} test places per season, pairs {[f'{a}-{b}' for a, b in pairs]}, "
         f"methods {list(cfg.methods)}, logdir {logdir}")
     ks = {m: cfg.removed_pcs if m in SWEEPS_REMOVED_PCS else (0,) for m in cfg.methods}
     write_experiment_config(
-        logdir,
+        out,
         {"season_pair": [f"{a}-{b}" for a, b in pairs], "method": list(cfg.methods),
          "removed_pcs": [float(k) for m in cfg.methods for k in ks[m]]},
         [f"metrics/{k}" for k in METRIC_KEYS] + [f"timing/{k}" for k in TIMING_KEYS],
@@ -273,22 +317,22 @@ def run_sweep(cfg: SweepConfig) -> Path:
         for db, query in pairs:
             pair = f"{db}-{query}"
             data = None  # built on first use; its PCA fit then serves PCA and ICA
-            ctx = method_context(cfg, logdir, pair, log)
+            ctx = method_context(cfg, logdir, out, pair, log, mesh)
             for method in cfg.methods:
                 pending = tuple(k for (p, m, k) in todo if p == (db, query) and m == method)
                 if not pending:
                     continue
                 if data is None:
                     data = pair_data(route, split, db, query, cfg.split.database)
-                for out in METHODS[method](data, pending, cfg, ctx):
+                for cell in METHODS[method](data, pending, cfg, ctx):
                     # A run left by a crash before its row was written is redone.
-                    shutil.rmtree(logdir / run_name(pair, method, out.removed_pcs), True)
-                    row = finish_cell(logdir, cfg, data, out)
-                    append_results(logdir / "results.csv", [row])
+                    shutil.rmtree(out / run_name(pair, method, cell.removed_pcs), True)
+                    row = finish_cell(out, cfg, data, cell)
+                    append_results(out / "results.csv", [row])
                     finished += 1
                     bar.advance()
-                    log_cell(log, f"[{finished}/{len(cells)}]", row, out)
-    write_summaries(logdir)
+                    log_cell(log, f"[{finished}/{len(cells)}]", row, cell)
+    write_summaries(out)
     log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
         f"view with: tensorboard --logdir {logdir}")
     return logdir

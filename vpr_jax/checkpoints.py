@@ -12,6 +12,10 @@ Each step holds three items:
 
 Saves are synchronous: an epoch counts as saved only once its step is committed. A process
 killed mid-save leaves a ``*.orbax-checkpoint-tmp`` folder that orbax ignores.
+
+With several processes (``mesh.distributed``) every process trains the same replicated
+model: process 0 alone saves (host copies), each process reads on its own, so orbax never
+waits on the others. The checkpoint folder must then be on a file system all hosts share.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
+import numpy as np
 import orbax.checkpoint as ocp
 
 from vpr_jax.errors import UserError
@@ -36,7 +41,15 @@ def _abstract(tree):
 
 
 def _manager(directory: Path) -> ocp.CheckpointManager:
-    options = ocp.CheckpointManagerOptions(max_to_keep=2, enable_async_checkpointing=False)
+    me = jax.process_index()  # this process alone: no barrier with the others
+    options = ocp.CheckpointManagerOptions(
+        max_to_keep=2,
+        enable_async_checkpointing=False,
+        create=False,  # save() makes the folder; reading never creates one
+        multiprocessing_options=ocp.options.MultiprocessingOptions(
+            primary_host=me, active_processes={me}
+        ),
+    )
     return ocp.CheckpointManager(Path(directory).expanduser().resolve(), options=options)
 
 
@@ -74,7 +87,12 @@ def restore(directory: Path, model_like, train_like=None) -> Restored:
 
 
 def save(directory: Path, step: int, train, model, meta: dict) -> None:
-    """Commit one step (an epoch) synchronously; keep the last two."""
+    """Commit one step (an epoch) synchronously; keep the last two. Process 0 only."""
+    if jax.process_index() != 0:
+        return
+    # Host copies: a model replicated over several processes' devices is not addressable
+    # from one process, its numpy copy is.
+    train, model = jax.tree.map(np.asarray, (train, model))
     Path(directory).mkdir(parents=True, exist_ok=True)
     with _manager(directory) as manager:
         manager.save(

@@ -216,6 +216,30 @@ class MatchingConfig:
 
 
 @dataclass(frozen=True)
+class MeshConfig:
+    """Devices the work is split over (``vpr_jax.sharding``): PCA samples, the matching
+    database and each training batch. Results equal one device's up to float rounding."""
+
+    devices: int = 0  # 0: every device JAX sees (one: plain single-device code); N: first N
+    # Several processes (one per host): jax.distributed.initialize() before anything else.
+    # Leave the three below unset under SLURM, Open MPI and other launchers JAX detects.
+    distributed: bool = False
+    coordinator: str | None = None  # host:port of process 0, e.g. 10.0.0.1:1234
+    num_processes: int | None = None
+    process_id: int | None = None  # 0 .. num_processes - 1; process 0 writes the logdir
+
+    def __post_init__(self):
+        _check(self.devices >= 0, f"mesh.devices={self.devices} is negative: use 0 (all "
+               "devices), 1, or a count")  # fmt: skip
+        explicit = (self.coordinator, self.num_processes, self.process_id)
+        _check(self.distributed or all(v is None for v in explicit),
+               "mesh.coordinator/num_processes/process_id need mesh.distributed=true")
+        _check(all(v is None for v in explicit) or None not in explicit,
+               "set all of mesh.coordinator, mesh.num_processes and mesh.process_id, or none "
+               "(a launcher JAX detects, such as SLURM, fills them in)")  # fmt: skip
+
+
+@dataclass(frozen=True)
 class TensorBoardConfig:
     n_match_examples: int = 6  # query | best match | true match rows per run
     n_basis_images: int = 8  # removed PCs / independent components shown as 32x64 images
@@ -245,6 +269,7 @@ class SweepConfig:
     cae: CAEConfig = field(default_factory=CAEConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
+    mesh: MeshConfig = field(default_factory=MeshConfig)
     tb: TensorBoardConfig = field(default_factory=TensorBoardConfig)
 
     def __post_init__(self):
@@ -267,9 +292,10 @@ class SweepConfig:
 
 
 # Keys that may differ between runs sharing a logdir: they add cells or change presentation,
-# never the numbers of a cell already written.
+# or where and in what blocks the same numbers are computed (up to float rounding), never
+# the numbers of a cell already written.
 EXTENDABLE_KEYS = ("preset", "season_pairs", "methods", "removed_pcs", "logdir", "tb",
-                   "matching")
+                   "matching", "mesh")
 
 _LIST_KEYS = ("methods", "removed_pcs", "data.seasons", "cae.channels", "cae.kernel_sizes")
 

@@ -19,7 +19,12 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
+
+from vpr_jax import sharding
+from vpr_jax.sharding import AXIS
 
 _EPS = 1e-12
 SCORE_BUDGET = 4096 * 4096  # floats scored per matching step when blocks are automatic
@@ -77,7 +82,10 @@ def _top_k_blocks(
     k: int,
     block_size: int,
     starts: tuple[int, ...],
+    first_index: Int[Array, ""] = 0,
 ):
+    """Running top-K over database blocks; ``first_index`` is the global index of the first
+    block's first row (a device's part of a sharded database starts past 0)."""
     n_starts, nq = len(starts), query_desc.shape[0]
     init = (
         jnp.full((n_starts, nq, k), -jnp.inf, query_desc.dtype),
@@ -98,10 +106,9 @@ def _top_k_blocks(
         # lowest database index, as argmax would.
         merged_scores = jnp.concatenate([best_scores, jnp.stack(block_scores)], axis=-1)
         merged_idx = jnp.concatenate([best_idx, jnp.stack(block_idx)], axis=-1)
-        top_scores, pos = jax.lax.top_k(merged_scores, k)
-        return (top_scores, jnp.take_along_axis(merged_idx, pos, axis=-1)), None
+        return _merge_top_k(merged_scores, merged_idx, k), None
 
-    offsets = jnp.arange(db_blocks.shape[0], dtype=jnp.int32) * block_size
+    offsets = first_index + jnp.arange(db_blocks.shape[0], dtype=jnp.int32) * block_size
     (scores, idx), _ = jax.lax.scan(step, init, (db_blocks, offsets))
     return scores, idx
 
@@ -116,6 +123,32 @@ def _top_k_query_blocks(query_blocks, db_blocks, n_db, k, block_size, starts):
     )
 
 
+def _merge_top_k(scores, indices, k: int):
+    """The K best of longer lists (last axis); ties keep the earlier entry (stable top_k)."""
+    top, pos = jax.lax.top_k(scores, k)
+    return top, jnp.take_along_axis(indices, pos, axis=-1)
+
+
+@functools.lru_cache(maxsize=16)
+def _sharded_top_k(mesh, k: int, block_size: int, starts: tuple[int, ...]):
+    """``_top_k_query_blocks`` with the database blocks split across ``mesh``: every device
+    keeps the K best of its own part, then the K-lists are gathered (in device order, so in
+    database order) and merged. Queries are replicated."""
+
+    def local(query_blocks, db_blocks, n_db):
+        first = jax.lax.axis_index(AXIS) * (db_blocks.shape[0] * block_size)
+        scores, idx = jax.lax.map(
+            lambda q: _top_k_blocks(q, db_blocks, n_db, k, block_size, starts, first),
+            query_blocks,
+        )  # (query blocks, starts, block, k) on each device
+        scores = jax.lax.all_gather(scores, AXIS, axis=3, tiled=True)
+        idx = jax.lax.all_gather(idx, AXIS, axis=3, tiled=True)
+        return _merge_top_k(scores, idx, k)
+
+    return jax.jit(jax.shard_map(local, mesh=mesh, in_specs=(P(), P(AXIS), P()),
+                                 out_specs=(P(), P()), check_vma=False))  # fmt: skip
+
+
 def top_k_matches(
     query_desc: Float[Array, "nq d"],
     db_desc: Float[Array, "ndb d"],
@@ -124,6 +157,7 @@ def top_k_matches(
     starts: tuple[int, ...] = (0,),
     block_size: int = 4096,
     query_block_size: int | None = None,
+    mesh: Mesh | None = None,
 ) -> tuple[Float[np.ndarray, "s nq k"], Int[np.ndarray, "s nq k"]]:
     """The K best database matches of every query, best first, for every suffix start.
 
@@ -132,9 +166,14 @@ def top_k_matches(
     floats, independent of n_db; by default query blocks shrink as starts grow so that a step
     stays near SCORE_BUDGET floats (measured fastest on a 2-core CPU: smaller score blocks
     stay in cache while every start makes its own pass over them).
+
+    With a ``mesh`` the database is split across its devices (``vpr_jax.sharding``): each
+    scores its part in the same blocks, and the per-device K-lists are merged.
     """
-    query_desc = jnp.asarray(query_desc, jnp.float32)
-    db_desc = jnp.asarray(db_desc, jnp.float32)
+    # Host arrays for a mesh (put() hands each device its part); else wherever they are.
+    xp = np if mesh is not None else jnp
+    query_desc = xp.asarray(query_desc, np.float32)
+    db_desc = xp.asarray(db_desc, np.float32)
     n_db, d = db_desc.shape
     starts = tuple(int(s) for s in starts)
     if not starts or any(b <= a for a, b in zip(starts, starts[1:], strict=False)):
@@ -142,20 +181,23 @@ def top_k_matches(
     if starts[0] < 0 or starts[-1] >= d:
         raise ValueError(f"starts {starts} leave no feature of {d}")
     k = min(k, n_db)
-    block_size = min(block_size, n_db)
+    n_devices = sharding.mesh_size(mesh)
+    block_size = min(block_size, -(-n_db // n_devices))  # no device scores only padding
     if query_block_size is None:
         query_block_size = max(256, SCORE_BUDGET // (len(starts) * block_size))
-    n_blocks = -(-n_db // block_size)
-    padded = jnp.pad(db_desc, ((0, n_blocks * block_size - n_db), (0, 0)))
-    db_blocks = padded.reshape(n_blocks, block_size, d)
+    db_blocks = sharding.pad_rows(db_desc, n_devices * block_size).reshape(-1, block_size, d)
     nq = query_desc.shape[0]
     query_block_size = min(query_block_size, nq)
-    n_query_blocks = -(-nq // query_block_size)
-    query_blocks = jnp.pad(query_desc, ((0, n_query_blocks * query_block_size - nq), (0, 0)))
-    scores, indices = _top_k_query_blocks(
-        query_blocks.reshape(n_query_blocks, query_block_size, d), db_blocks, n_db, k,
-        block_size, starts,
-    )  # fmt: skip
+    query_blocks = sharding.pad_rows(query_desc, query_block_size)
+    query_blocks = query_blocks.reshape(-1, query_block_size, d)
+    if mesh is None:
+        scores, indices = _top_k_query_blocks(query_blocks, db_blocks, n_db, k, block_size,
+                                              starts)  # fmt: skip
+    else:
+        scores, indices = _sharded_top_k(mesh, k, block_size, starts)(
+            sharding.put(query_blocks, mesh, P()), sharding.put_rows(db_blocks, mesh),
+            jnp.int32(n_db),
+        )  # fmt: skip
     # (query blocks, starts, block, k) -> (starts, queries, k), padding queries dropped
     scores = np.asarray(scores).transpose(1, 0, 2, 3).reshape(len(starts), -1, k)[:, :nq]
     indices = np.asarray(indices).transpose(1, 0, 2, 3).reshape(len(starts), -1, k)[:, :nq]

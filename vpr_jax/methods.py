@@ -17,6 +17,7 @@ from typing import NamedTuple
 
 import jax
 import numpy as np
+from jax.sharding import Mesh
 
 from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig
 from vpr_jax.encoders import autoencoders as ae
@@ -59,6 +60,7 @@ class MethodContext(NamedTuple):
     checkpoint_dir: Path | None = None  # this pair's model folders go under it
     training_log: Callable[[str], TrainingLog] | None = None  # method name -> its log
     identity: dict | None = None  # what besides its spec determines a trained model
+    mesh: Mesh | None = None  # devices to split work over (vpr_jax.sharding); None: one
 
 
 def _timed(fn: Callable, *args):
@@ -76,11 +78,20 @@ def _encode_ms(encode: Callable, pair: PairData) -> tuple[np.ndarray, np.ndarray
     return db, query, ms
 
 
-def shared_pca_fit(pair: PairData, cfg: SweepConfig) -> tuple[pca.PCAState, float]:
+def shared_pca_fit(
+    pair: PairData, cfg: SweepConfig, ctx: MethodContext
+) -> tuple[pca.PCAState, float]:
     """The pair's PCA fit and its seconds, computed once and reused by PCA and ICA cells."""
     if "pca" not in pair.fits:
-        pair.fits["pca"] = _timed(lambda x: pca.fit_pca(x, solver=cfg.pca.solver), pair.train)
+        pair.fits["pca"] = _timed(
+            lambda x: pca.fit_pca(x, solver=cfg.pca.solver, mesh=ctx.mesh), pair.train
+        )
     return pair.fits["pca"]
+
+
+def _match(query, db, cfg: SweepConfig, ctx: MethodContext, starts=(0,)):
+    return top_k_matches(query, db, TOP_K, starts=starts, block_size=cfg.matching.block_size,
+                         mesh=ctx.mesh)  # fmt: skip
 
 
 def _images(vectors: np.ndarray, pair: PairData) -> np.ndarray:
@@ -97,10 +108,10 @@ def run_raw(
     pair: PairData, removed_pcs: tuple[int, ...], cfg: SweepConfig, ctx: MethodContext
 ) -> list[CellOutput]:
     """Raw pixels, centred with the training mean; cosine does the L2 normalisation."""
-    del removed_pcs, ctx
+    del removed_pcs
     mean, fit_s = _timed(lambda x: jax.numpy.mean(pca.flatten(x), axis=0), pair.train)
     db, query, ms = _encode_ms(lambda x: _centred(x, mean), pair)
-    scores, idx = top_k_matches(query, db, TOP_K, block_size=cfg.matching.block_size)
+    scores, idx = _match(query, db, cfg, ctx)
     return [CellOutput("raw", 0, scores[0], idx[0], fit_s, ms, None)]
 
 
@@ -112,18 +123,16 @@ def run_pca(
     Matching scores coefficient suffixes (``starts=removed_pcs``), which equals zeroing the
     first k coefficients or, with ``pca.output=pixels``, mapping the kept ones back to pixels.
     """
-    del ctx
-    state, fit_s = shared_pca_fit(pair, cfg)
+    state, fit_s = shared_pca_fit(pair, cfg, ctx)
     if cfg.pca.output == "pixels":
         outputs = []
         for k in removed_pcs:
             db, query, ms = _encode_ms(lambda x, k=k: pca.encode(state, x, k, "pixels"), pair)
-            scores, idx = top_k_matches(query, db, TOP_K, block_size=cfg.matching.block_size)
+            scores, idx = _match(query, db, cfg, ctx)
             outputs.append((k, scores[0], idx[0], ms))
     else:
         db, query, ms = _encode_ms(lambda x: pca.project(state, x), pair)
-        scores, idx = top_k_matches(query, db, TOP_K, starts=removed_pcs,
-                                    block_size=cfg.matching.block_size)
+        scores, idx = _match(query, db, cfg, ctx, starts=removed_pcs)
         outputs = [(k, scores[i], idx[i], ms) for i, k in enumerate(removed_pcs)]
     components = _images(state.components[: cfg.tb.n_basis_images], pair)
     return [
@@ -140,8 +149,7 @@ def run_ica(
     Yields each count's cell as soon as it is done, so the sweep saves it at once.
     fit_seconds is the PCA fit plus that count's FastICA iterations: what ICA costs alone.
     """
-    del ctx
-    pca_state, pca_s = shared_pca_fit(pair, cfg)
+    pca_state, pca_s = shared_pca_fit(pair, cfg, ctx)
     rank = ica.data_rank(pca_state, len(pair.train))
     c = cfg.ica
     for k in removed_pcs:
@@ -165,7 +173,7 @@ def run_ica(
             pair.train,
         )
         db, query, ms = _encode_ms(lambda x, state=state: ica.encode(state, x), pair)
-        scores, idx = top_k_matches(query, db, TOP_K, block_size=cfg.matching.block_size)
+        scores, idx = _match(query, db, cfg, ctx)
         n_iter, converged = int(state.n_iter), bool(state.converged)
         warning = None if converged else (
             f"ICA ({state.unmixing.shape[0]} components, removed_pcs={k}) did not converge: "
@@ -218,13 +226,14 @@ def run_autoencoder(
                       "method": method},  # fmt: skip
             log=log,
             name=f"{name} {method}",
+            mesh=ctx.mesh,
         )
     finally:
         if log is not None:
             log.close()
     encode = ae.make_encode(result.graphdef)
     db, query, ms = _encode_ms(lambda x: encode(result.params, x), pair)
-    scores, idx = top_k_matches(query, db, TOP_K, block_size=cfg.matching.block_size)
+    scores, idx = _match(query, db, cfg, ctx)
     basis = None
     if method == "fae":  # what each hidden unit looks for: its weights as an image
         weights = np.asarray(result.params["encoder"]["kernel"]).T[: cfg.tb.n_basis_images]

@@ -17,7 +17,13 @@ from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
+
+from vpr_jax import sharding
+from vpr_jax.sharding import AXIS
 
 Solver = Literal["auto", "covariance", "gram"]
 Output = Literal["coefficients", "pixels"]
@@ -53,22 +59,73 @@ def _flip_signs(components: Float[Array, "c d"]) -> Float[Array, "c d"]:
     return components * jnp.where(pivot < 0, -1.0, 1.0)[:, None]
 
 
-@functools.partial(jax.jit, static_argnames=("n_components", "solver"))
-def _fit(x: Float[Array, "n d"], n_components: int, solver: str) -> PCAState:
+COVARIANCE_BLOCK_ROWS = 4096  # rows centred at once: the covariance never copies all of X
+
+
+def _scatter(x, mean, n_valid, first_row, block_rows: int):
+    """Sum of (x_i - mean)(x_i - mean)^T over rows whose global index is below ``n_valid``,
+    accumulated over blocks of ``block_rows`` (rows past ``n_valid`` are padding)."""
+    m, d = x.shape
+    n_blocks = m // block_rows
+
+    def block_scatter(block, start):
+        valid = (start + jnp.arange(block.shape[0]) < n_valid)[:, None]
+        xc = jnp.where(valid, block - mean, 0.0)
+        return xc.T @ xc
+
+    def body(acc, i):
+        block = jax.lax.dynamic_slice_in_dim(x, i * block_rows, block_rows)
+        return acc + block_scatter(block, first_row + i * block_rows), None
+
+    acc = jnp.zeros((d, d), x.dtype)
+    if n_blocks:
+        acc, _ = jax.lax.scan(body, acc, jnp.arange(n_blocks))
+    if m % block_rows:  # the tail, static size: no padded copy of the data
+        acc = acc + block_scatter(x[n_blocks * block_rows :], first_row + n_blocks * block_rows)
+    return acc
+
+
+@functools.partial(jax.jit, static_argnames=("block_rows",))
+def _moments(x: Float[Array, "n d"], block_rows: int):
+    """Mean and centred scatter matrix of all rows, on one device."""
+    n = x.shape[0]
+    mean = jnp.mean(x, axis=0)
+    return mean, _scatter(x, mean, n, 0, block_rows)
+
+
+@functools.lru_cache(maxsize=16)
+def _sharded_moments(mesh, block_rows: int):
+    """``_moments`` with the rows split across ``mesh``: each device sums its own rows
+    (zero padding rows past ``n`` excluded), one ``psum`` per statistic."""
+
+    def local(x, n):
+        mean = jax.lax.psum(jnp.sum(x, axis=0), AXIS) / n  # padding rows are zeros
+        first = jax.lax.axis_index(AXIS) * x.shape[0]
+        return mean, jax.lax.psum(_scatter(x, mean, n, first, block_rows), AXIS)
+
+    return jax.jit(jax.shard_map(local, mesh=mesh, in_specs=(P(AXIS), P()),
+                                 out_specs=(P(), P()), check_vma=False))  # fmt: skip
+
+
+@functools.partial(jax.jit, static_argnames=("n_components",))
+def _from_scatter(mean, scatter, n, n_components: int) -> PCAState:
+    eigvals, eigvecs = jnp.linalg.eigh(scatter / (n - 1))
+    eigvals = eigvals[::-1][:n_components]
+    components = eigvecs[:, ::-1][:, :n_components].T
+    return PCAState(mean, _flip_signs(components), jnp.maximum(eigvals, 0.0))
+
+
+@functools.partial(jax.jit, static_argnames=("n_components",))
+def _fit_gram(x: Float[Array, "n d"], n_components: int) -> PCAState:
     n = x.shape[0]
     mean = jnp.mean(x, axis=0)
     xc = x - mean
-    if solver == "covariance":
-        eigvals, eigvecs = jnp.linalg.eigh(xc.T @ xc / (n - 1))
-        eigvals = eigvals[::-1][:n_components]
-        components = eigvecs[:, ::-1][:, :n_components].T
-    else:
-        eigvals, eigvecs = jnp.linalg.eigh(xc @ xc.T)
-        eigvals = eigvals[::-1][:n_components]
-        # Right singular vectors from left ones: v_i = Xc^T u_i / sqrt(lambda_i).
-        scale = jnp.where(eigvals > 0, jax.lax.rsqrt(jnp.maximum(eigvals, 1e-30)), 0.0)
-        components = (xc.T @ eigvecs[:, ::-1][:, :n_components] * scale).T
-        eigvals = eigvals / (n - 1)
+    eigvals, eigvecs = jnp.linalg.eigh(xc @ xc.T)
+    eigvals = eigvals[::-1][:n_components]
+    # Right singular vectors from left ones: v_i = Xc^T u_i / sqrt(lambda_i).
+    scale = jnp.where(eigvals > 0, jax.lax.rsqrt(jnp.maximum(eigvals, 1e-30)), 0.0)
+    components = (xc.T @ eigvecs[:, ::-1][:, :n_components] * scale).T
+    eigvals = eigvals / (n - 1)
     return PCAState(mean, _flip_signs(components), jnp.maximum(eigvals, 0.0))
 
 
@@ -76,12 +133,19 @@ def fit_pca(
     train: Float[Array, "n ..."],
     n_components: int | None = None,
     solver: Solver = "auto",
+    *,
+    mesh: Mesh | None = None,
+    block_rows: int = COVARIANCE_BLOCK_ROWS,
 ) -> PCAState:
     """Fit PCA on training images (any trailing shape; flattened to D pixels).
 
-    ``n_components`` defaults to the rank limit min(N - 1, D).
+    ``n_components`` defaults to the rank limit min(N - 1, D). The covariance solver sums
+    the centred scatter over blocks of ``block_rows`` images, and with a ``mesh`` splits
+    the images across its devices (``vpr_jax.sharding``); the Gram solver, for fewer
+    images than pixels, runs on one device.
     """
-    x = flatten(jnp.asarray(train, jnp.float32))
+    xp = np if mesh is not None else jnp  # host rows for a mesh, else wherever they are
+    x = xp.reshape(xp.asarray(train, np.float32), (len(train), -1))
     n, d = x.shape
     limit = rank_limit(n, d)
     if limit < 1:
@@ -89,7 +153,14 @@ def fit_pca(
     n_components = limit if n_components is None else n_components
     if not 1 <= n_components <= limit:
         raise ValueError(f"n_components={n_components} outside 1..{limit} for {n} x {d} data")
-    return _fit(x, n_components, choose_solver(n, d, solver))
+    if choose_solver(n, d, solver) == "gram":
+        return _fit_gram(x, n_components)
+    if mesh is None:
+        mean, scatter = _moments(x, block_rows)
+    else:
+        rows = sharding.put_rows(sharding.pad_rows(x, sharding.mesh_size(mesh)), mesh)
+        mean, scatter = _sharded_moments(mesh, block_rows)(rows, jnp.float32(n))
+    return _from_scatter(mean, scatter, n, n_components)
 
 
 @jax.jit

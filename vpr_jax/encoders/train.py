@@ -24,14 +24,17 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 from flax import nnx
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float
 
-from vpr_jax import checkpoints
+from vpr_jax import checkpoints, sharding
 from vpr_jax.config import TrainConfig
 from vpr_jax.data.augment import AugmentConfig, augment_batch
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Bar
+from vpr_jax.sharding import AXIS
 
 OPTIMIZERS = {"adam": optax.adam, "adamw": optax.adamw, "sgd": optax.sgd}  # config's names
 
@@ -70,16 +73,29 @@ def _optimizer(name: str, learning_rate: float) -> optax.GradientTransformation:
 
 
 @functools.lru_cache(maxsize=32)  # per architecture: season pairs share compilations
-def make_train_step(graphdef, tx: optax.GradientTransformation, augment: AugmentConfig | None):
+def make_train_step(
+    graphdef,
+    tx: optax.GradientTransformation,
+    augment: AugmentConfig | None,
+    mesh: Mesh | None = None,
+):
     """The jitted step ``(params, opt_state, batch, key) -> (params, opt_state, metrics)``
     for one architecture and optimizer; metrics: ``loss`` and the ``inputs`` it trained on
-    (the batch after augmentation)."""
+    (the batch after augmentation).
+
+    With a ``mesh`` the batch is split across its devices (data parallel): parameters and
+    optimizer state are replicated and XLA all-reduces the gradients. Augmentation draws
+    the same numbers either way (JAX's threefry keys are partitionable).
+    """
+    batch_sharding = None if mesh is None else NamedSharding(mesh, P(AXIS))
 
     def loss_fn(params, batch):
         return ae.reconstruction_loss(graphdef, params, batch)
 
     @jax.jit
     def train_step(params, opt_state, batch: Float[Array, "b h w ..."], key: jax.Array):
+        if batch_sharding is not None:
+            batch = jax.lax.with_sharding_constraint(batch, batch_sharding)
         if augment is not None:
             batch = augment_batch(key, batch, augment)
         loss, grads = jax.value_and_grad(loss_fn)(params, batch)
@@ -162,13 +178,15 @@ def fit_autoencoder(
     identity: dict | None = None,
     log: TrainingLog | None = None,
     name: str = "auto-encoder",
+    mesh: Mesh | None = None,
 ) -> TrainResult:
     """Train (or resume, or restore) one auto-encoder; returns its best parameters.
 
     With ``checkpoint_dir``, an epoch is committed there once ``checkpoint_every_s`` seconds
     passed since the last save, and the last epoch always is: a finished model is restored,
     an unfinished one resumes after its last saved epoch. ``identity`` (JSON data) must
-    match the checkpoint's, so a model of other data or settings is never reused.
+    match the checkpoint's, so a model of other data or settings is never reused. With a
+    ``mesh`` each batch is split across its devices (see ``make_train_step``).
     """
     start = time.perf_counter()
     settings = settings or TrainConfig()
@@ -211,10 +229,19 @@ def fit_autoencoder(
     n = len(train_images)
     batch_size = min(settings.batch_size, n)
     steps_per_epoch = n // batch_size  # the tail is dropped: one compiled batch shape
-    train_step = make_train_step(graphdef, tx, AugmentConfig() if settings.augment else None)
+    n_devices = sharding.mesh_size(mesh)
+    if batch_size % n_devices:
+        raise UserError(f"train.batch_size={batch_size} does not split over {n_devices} "
+                        f"devices: use a multiple of {n_devices}, or set mesh.devices")
+    augment = AugmentConfig() if settings.augment else None
+    train_step = make_train_step(graphdef, tx, augment, mesh)
     eval_loss = make_eval_loss(graphdef, batch_size)
     reconstruct = ae.make_reconstruct(graphdef)
-    train_dev = jnp.asarray(train_images)
+    if mesh is None:
+        train_dev = jnp.asarray(train_images)
+    else:  # every device holds the training set; each step splits its batch
+        train_dev = sharding.replicate(train_images, mesh)
+        params, opt_state, best_params = sharding.replicate((params, opt_state, best_params), mesh)
     if log is not None:
         log.begin(step)
 
@@ -231,7 +258,7 @@ def fit_autoencoder(
                 )
                 losses.append(metrics["loss"])
                 if log is not None and epoch == 1 and s == 0 and settings.augment:
-                    shown = np.asarray(metrics["inputs"])
+                    shown = sharding.to_host(metrics["inputs"])
                     log.images("inputs/augmented", _examples(shown, 8), step + 1)
                 bar.advance()
         losses = np.asarray(jnp.stack(losses)) if losses else np.zeros(0)

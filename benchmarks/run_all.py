@@ -1,0 +1,171 @@
+"""Every speed goal in one table, each row a ratio to the peer timed in this same run.
+
+    python benchmarks/run_all.py [--repeats 3] [--skip-protocol] [--protocol-args "k=v ..."]
+
+Rows (seed's sizes: 5,000 x 2,048 training images, 3,569 queries x 3,569 database):
+  PCA fit                    vs scikit-learn PCA(svd_solver="covariance_eigh")   <= 1.0x
+  removed-PC sweep, 6 counts vs one count (encode + match)                       <= 1.5x
+  FastICA, 256 components    vs scikit-learn FastICA(algorithm="parallel")       <= 0.2x
+  matching, top-10 cosine    vs numpy brute force                                <= 1.2x
+  encode ms/image            vs the seed's Table 5 (GTX 1060)                    <= 0.1x
+  the paper protocol         vs the goal of 10 minutes on a 2-core CPU, and the seed's
+                             Table 4 total (14 h 50 min) for scale
+The paper protocol is ``python -m experiments.sweep preset=paper`` in a fresh process, into a
+temporary logdir and checkpoint folder (three pairs x raw, six PCA counts, six ICA counts,
+FAE, CAE; compilation and data generation included), with its peak RSS.
+Ours: warm medians of --repeats runs; peers the same.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from bench_autoencoders import MODELS as AE_MODELS
+from bench_ica import fit_ours as fit_ica
+from bench_ica import fit_sklearn as fit_sklearn_ica
+from bench_linear import REMOVED_PCS, numpy_top_k
+from common import seed_route, timed
+from sklearn.decomposition import PCA
+
+from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.encoders import ica, pca
+from vpr_jax.matching import top_k_matches
+from vpr_jax.results import read_results
+
+REPO = Path(__file__).resolve().parent.parent
+SEED_TABLE_4 = ("1:12:05", "1:57:32", "3:43:46", "7:56:09")  # baseline, ICA, FAE, CAE
+SEED_TABLE_4_S = sum(int(h) * 3600 + int(m) * 60 + int(s)
+                     for h, m, s in (t.split(":") for t in SEED_TABLE_4))  # fmt: skip
+PROTOCOL_GOAL_S = 600.0
+ICA_COMPONENTS = 256
+
+
+class Table:
+    def __init__(self):
+        self.rows: list[tuple[str, str, str, str, str, str]] = []
+
+    def add(self, what: str, ours: float, peer: float, peer_name: str, goal: float,
+            unit: str = "s") -> None:  # fmt: skip
+        ratio = ours / peer
+        fmt = (lambda v: f"{v:.4f} {unit}") if unit == "ms" else (lambda v: f"{v:.3f} {unit}")
+        met = "yes" if ratio <= goal else "NO"
+        self.rows.append((what, fmt(ours), f"{peer_name} {fmt(peer)}", f"{ratio:.3f}x",
+                          f"<= {goal:g}x", met))  # fmt: skip
+        print(f"  {what}: {ratio:.3f}x", flush=True)
+
+    def print(self) -> None:
+        header = ("what", "ours", "peer, same run", "ratio", "goal", "met")
+        widths = [max(len(r[i]) for r in [header, *self.rows]) for i in range(len(header))]
+        for i, r in enumerate([header, *self.rows]):
+            print("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)))
+            if i == 0:
+                print("  ".join("-" * w for w in widths))
+
+
+def linear_rows(table: Table, train, db, query, repeats: int) -> None:
+    _, ours = timed(lambda: pca.fit_pca(train), repeats)
+    _, peer = timed(lambda: PCA(svd_solver="covariance_eigh").fit(train), repeats)
+    table.add("PCA fit, 5,000 x 2,048", ours, peer, "sklearn covariance_eigh", 1.0)
+
+    state = pca.fit_pca(train)
+
+    def sweep(ks):
+        return top_k_matches(pca.project(state, query), pca.project(state, db), 10, starts=ks)
+
+    _, all_k = timed(lambda: sweep(REMOVED_PCS), repeats)
+    _, one_k = timed(lambda: sweep((50,)), repeats)
+    table.add(f"removed-PC sweep, {len(REMOVED_PCS)} counts", all_k, one_k, "one count", 1.5)
+
+    _, ours = timed(lambda: fit_ica(train, ICA_COMPONENTS), max(1, repeats // 2))
+    _, peer = fit_sklearn_ica(train, ICA_COMPONENTS, "svd")
+    table.add(f"FastICA, {ICA_COMPONENTS} components", ours, peer, "sklearn parallel", 0.2)
+
+    _, ours = timed(lambda: top_k_matches(query, db, 10), repeats)
+    _, peer = timed(lambda: numpy_top_k(query, db, 10), repeats)
+    table.add("matching, top-10 of 3,569 x 3,569", ours, peer, "numpy brute force", 1.2)
+
+    both = np.concatenate([db, query])
+    _, enc = timed(lambda: pca.project(state, both), repeats)
+    table.add("encode PCA", 1000 * enc / len(both), 0.1, "seed Table 5", 0.1, "ms")
+    ica_state = fit_ica(train, ICA_COMPONENTS)
+    _, enc = timed(lambda: ica.encode(ica_state, both), repeats)
+    table.add(f"encode ICA ({ICA_COMPONENTS})", 1000 * enc / len(both), 0.3, "seed Table 5", 0.1,
+              "ms")  # fmt: skip
+
+
+def encoder_rows(table: Table, db, query, repeats: int) -> None:
+    shape = ae.IMAGE_SHAPE
+    db, query = db.reshape(len(db), *shape), query.reshape(len(query), *shape)
+    for name, spec, seed_ms in AE_MODELS:
+        graphdef, params = ae.build(spec, jax.random.key(0))
+        encode = ae.make_encode(graphdef)
+
+        def both(encode=encode, params=params):
+            return encode(params, db), encode(params, query)
+
+        _, warm = timed(both, repeats)
+        ms = 1000 * warm / (len(db) + len(query))
+        table.add(f"encode {name}", ms, seed_ms, "seed Table 5", 0.1, "ms")
+
+
+def protocol_row(table: Table, extra: list[str]) -> None:
+    with tempfile.TemporaryDirectory(prefix="vpr_jax-bench-") as tmp:
+        logdir = Path(tmp) / "paper"
+        cmd = [sys.executable, "-m", "experiments.sweep", "preset=paper", f"logdir={logdir}",
+               f"train.checkpoint_dir={Path(tmp) / 'checkpoints'}", *extra]  # fmt: skip
+        print(f"  running: {' '.join(cmd[1:])}", flush=True)
+        start = time.perf_counter()
+        proc = subprocess.run(cmd, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
+                              capture_output=True, text=True)  # fmt: skip
+        wall = time.perf_counter() - start
+        if proc.returncode != 0:
+            print(proc.stderr[-3000:], file=sys.stderr)
+            raise SystemExit(f"the paper protocol failed (exit {proc.returncode})")
+        rss_gib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20
+        rows = read_results(logdir / "results.csv")
+    by_method: dict[str, float] = {}
+    for row in rows:  # PCA and ICA report one shared fit per count: count each pair once
+        seconds = row["fit_seconds"] if row["method"] in ("raw", "fae", "cae") else 0.0
+        by_method[row["method"]] = by_method.get(row["method"], 0.0) + seconds
+    label = "paper protocol" + (f" ({' '.join(extra)})" if extra else "")
+    table.add(label, wall, PROTOCOL_GOAL_S, "goal: 10 min", 1.0)
+    table.add("  the same vs the seed's Table 4", wall, SEED_TABLE_4_S, "seed, 14 h 50 min", 1.0)
+    print(f"  {len(rows)} cells, peak RSS {rss_gib:.2f} GiB; training seconds "
+          f"{ {m: round(s, 1) for m, s in by_method.items() if m in ('fae', 'cae')} }")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3, help="warm runs per timing (median)")
+    parser.add_argument("--skip-protocol", action="store_true",
+                        help="leave out the paper protocol (the longest row)")
+    parser.add_argument("--protocol-args", default="",
+                        help="extra key=value overrides for the paper protocol, space-separated")
+    args = parser.parse_args()
+    start = time.perf_counter()
+    device = jax.devices()[0]
+    print(f"jax {jax.__version__} on {device.platform} ({device.device_kind}), "
+          f"{jax.device_count()} device(s), os.cpu_count() = {os.cpu_count()}", flush=True)
+
+    train, db, query = seed_route()
+    table = Table()
+    linear_rows(table, train, db, query, args.repeats)
+    encoder_rows(table, db, query, args.repeats)
+    if not args.skip_protocol:
+        protocol_row(table, args.protocol_args.split())
+    print()
+    table.print()
+    print(f"\ntotal {time.perf_counter() - start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

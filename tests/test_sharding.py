@@ -1,0 +1,155 @@
+"""The same numbers on a device mesh: 8 virtual CPU devices, and two processes on loopback.
+
+Virtual devices must exist before JAX starts, so every check runs in a fresh process
+(``XLA_FLAGS=--xla_force_host_platform_device_count=N``) and is compared here with the
+single-device run of the same code, or with numpy.
+"""
+
+import json
+import os
+import socket
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tests.conftest import REPO, SMALL, numpy_cosine, run_cli
+from vpr_jax.results import read_results
+
+EIGHT = {"XLA_FLAGS": "--xla_force_host_platform_device_count=8"}
+METRICS = ("recall_at_1", "precision_at_full_recall", "auc_pr", "recall_at_100_precision",
+           "recall_at_5", "recall_at_10")
+
+
+def _env(**extra: str) -> dict:
+    return {**os.environ, "PYTHONPATH": str(REPO), **extra}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def checks():
+    proc = subprocess.run([sys.executable, str(REPO / "tests" / "sharded_checks.py")],
+                          cwd=REPO, env=_env(**EIGHT), capture_output=True, text=True,
+                          timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_the_mesh_spans_eight_devices(checks):
+    assert checks["devices"] == 8
+
+
+def test_pca_with_samples_split_over_devices_equals_one_device(checks):
+    assert checks["pca_components"] < 1e-4
+    assert checks["pca_variance_rel"] < 1e-5
+    assert checks["pca_mean"] < 1e-6
+
+
+def test_matching_with_the_database_split_equals_one_device(checks):
+    assert checks["match_same_indices"]
+    assert checks["match_scores"] < 1e-6
+    assert checks["match_tie_order"] == [3, 500, 900]  # ties: lowest database index first
+
+
+@pytest.mark.parametrize("model", ["FAESpec", "CAESpec"])
+def test_data_parallel_training_equals_one_device(checks, model):
+    assert checks[f"{model}_param_devices"] == 8  # replicated over the mesh
+    assert checks[f"{model}_grad_rel"] < 1e-5
+    assert checks[f"{model}_params"] < 1e-5
+    one, split = checks[f"{model}_val_loss"]
+    assert split == pytest.approx(one, rel=1e-5)
+
+
+def test_the_training_step_splits_each_batch(checks):
+    assert 2 in checks["step_batch_shapes"]  # 16 images / 8 devices
+    assert checks["step_all_reduces"] >= 1  # the gradients
+
+
+def _same_rows(a: list[dict], b: list[dict]) -> None:
+    """Same cells, same metrics: closed-form methods to rounding. Trained auto-encoders only
+    closely: Adam turns rounding-level gradient differences of nearly dead units into whole
+    steps (tests above check gradients and SGD fits to rounding)."""
+    key = lambda r: (r["season_pair"], r["method"], r["removed_pcs"])  # noqa: E731
+    assert sorted(map(key, a)) == sorted(map(key, b))
+    other = {key(r): r for r in b}
+    for row in a:
+        tol = 0.02 if row["method"] in ("fae", "cae") else 1e-6
+        for metric in METRICS:
+            expected = other[key(row)][metric]
+            assert row[metric] == pytest.approx(expected, abs=tol), (key(row), metric)
+
+
+def test_the_sweep_on_eight_devices_equals_the_single_device_sweep(small_sweep, tmp_path):
+    logdir, _ = small_sweep
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments.sweep", *SMALL, "season_pairs=summer-fall",
+         "methods=[raw,pca,ica,fae]",
+         f"logdir={tmp_path / 'runs'}", f"train.checkpoint_dir={tmp_path / 'ck'}"],
+        cwd=REPO, env=_env(**EIGHT), capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "mesh: 8 cpu devices" in proc.stdout
+    single = [r for r in read_results(logdir / "results.csv")
+              if r["season_pair"] == "summer-fall" and r["method"] != "cae"]
+    _same_rows(read_results(tmp_path / "runs" / "results.csv"), single)
+
+
+def _start(args: list[str], **env: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, *args], cwd=REPO, env=_env(**env),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _finish(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        try:
+            _, err = p.communicate(timeout=300)
+        except subprocess.TimeoutExpired:
+            for q in procs:
+                q.kill()
+            raise
+        assert p.returncode == 0, err[-3000:]
+
+
+def test_two_processes_on_loopback_compute_one_sharded_similarity(tmp_path):
+    port, out = _free_port(), tmp_path / "matches.npz"
+    worker = str(REPO / "tests" / "loopback_worker.py")
+    _finish([_start([worker, str(port), "2", str(i), str(out)]) for i in range(2)])
+    with np.load(out) as z:
+        assert int(z["devices"]) == 4 and int(z["processes"]) == 2
+        sim = numpy_cosine(z["query"], z["db"])
+        order = np.argsort(-sim, axis=1, kind="stable")[:, :10]
+        np.testing.assert_array_equal(z["indices"], order)
+        np.testing.assert_allclose(z["scores"], np.take_along_axis(sim, order, 1), atol=1e-5)
+
+
+TINY = ["data.n_frames=400", "split.n_train=100", "split.n_test=60", "split.gap=10",
+        "methods=[raw,pca,fae]", "removed_pcs=[0,5]", "season_pairs=summer-fall",
+        "fae.hidden=32", "fae.epochs=2", "train.batch_size=16"]
+
+
+def test_a_sweep_over_two_processes_equals_one_process_and_only_process_0_writes(tmp_path):
+    one = run_cli(*TINY, f"logdir={tmp_path / 'one'}")
+    assert one.returncode == 0, one.stderr
+    port, logdir = _free_port(), tmp_path / "two"
+    args = ["-m", "experiments.sweep", *TINY, f"logdir={logdir}", "mesh.distributed=true",
+            f"mesh.coordinator=127.0.0.1:{port}", "mesh.num_processes=2",
+            f"train.checkpoint_dir={tmp_path / 'ck'}"]  # fmt: skip
+    devices = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    _finish([_start([*args, f"mesh.process_id={i}"], **devices) for i in range(2)])
+    _same_rows(read_results(logdir / "results.csv"), read_results(tmp_path / "one" / "results.csv"))
+    assert len(read_results(logdir / "results.csv")) == 4  # written once, not once per process
+    assert (tmp_path / "ck" / "two" / "summer-fall" / "fae").is_dir()
+
+
+def test_asking_for_more_devices_than_exist_is_one_line(tmp_path):
+    proc = run_cli("mesh.devices=64", f"logdir={tmp_path / 'runs'}")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]
+    assert "mesh.devices=64" in proc.stderr and "mesh.devices=0" in proc.stderr
+    assert not (tmp_path / "runs").exists()

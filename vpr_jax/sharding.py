@@ -1,0 +1,84 @@
+"""Where arrays live when there are several devices: one mesh axis, ``data``, over all of them.
+
+The suite splits one axis per stage across the mesh, with JAX's own SPMD (``NamedSharding``,
+``jax.shard_map``), never a scheduler of ours:
+
+- PCA: the training samples, for the covariance (each device sums its rows, one ``psum``);
+- matching: the database, for the running top-K (each device keeps the K best of its part,
+  the K-lists are gathered and merged);
+- auto-encoder training: the batch (parameters replicated, gradients all-reduced by XLA).
+
+A mesh spans every device JAX sees, those of other processes too once
+``jax.distributed.initialize`` has run, so the same code serves one GPU, eight, or several
+hosts. Arrays enter the mesh through ``jax.make_array_from_callback``, for which every
+process passes the same whole host array (each process has loaded the same data).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.experimental import multihost_utils
+from jax.sharding import AxisType, Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
+
+AXIS = "data"
+
+
+def make_mesh(devices: int = 0) -> Mesh | None:
+    """A one-axis mesh over ``devices`` devices; ``None`` means plain single-device code.
+
+    ``devices=0`` takes every device when there are several (``None`` when there is one);
+    ``devices=1`` always gives ``None``; ``devices=N`` takes the first N of ``jax.devices()``.
+    """
+    available = jax.devices()
+    if devices < 0:
+        raise ValueError(f"mesh.devices={devices} is negative: use 0 (all), 1, or a count")
+    if devices > len(available):
+        raise ValueError(
+            f"mesh.devices={devices} but JAX sees {len(available)} "
+            f"{available[0].platform} device(s): use mesh.devices=0 for all of them"
+        )
+    n = devices or len(available)
+    if n == 1:
+        return None
+    # Auto axes: XLA propagates the batch sharding through the training step by itself.
+    return jax.make_mesh((n,), (AXIS,), axis_types=(AxisType.Auto,), devices=available[:n])
+
+
+def mesh_size(mesh: Mesh | None) -> int:
+    return 1 if mesh is None else mesh.shape[AXIS]
+
+
+def pad_rows(x, multiple: int):
+    """``x`` (numpy or JAX) with zero rows appended up to a multiple of ``multiple``."""
+    extra = -len(x) % multiple
+    if not extra:
+        return x
+    xp = jnp if isinstance(x, jax.Array) else np
+    return xp.concatenate([x, xp.zeros((extra, *x.shape[1:]), x.dtype)])
+
+
+def put(x: np.ndarray, mesh: Mesh, spec: P) -> jax.Array:
+    """A host array onto the mesh with ``spec``; each device receives only its part."""
+    x = np.asarray(x)
+    return jax.make_array_from_callback(x.shape, NamedSharding(mesh, spec), lambda i: x[i])
+
+
+def put_rows(x: np.ndarray, mesh: Mesh) -> jax.Array:
+    """Rows split across the mesh (rows must divide evenly: see ``pad_rows``)."""
+    return put(x, mesh, P(AXIS))
+
+
+def replicate(tree, mesh: Mesh):
+    """Every leaf of a pytree copied to every device of the mesh."""
+    return jax.tree.map(lambda leaf: put(np.asarray(leaf), mesh, P()), tree)
+
+
+def to_host(x) -> np.ndarray:
+    """A numpy copy of an array, even one split over several processes' devices (then every
+    process must call this: it gathers)."""
+    if isinstance(x, jax.Array) and not (x.is_fully_addressable or x.is_fully_replicated):
+        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+    return np.asarray(x)
