@@ -19,6 +19,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh
 
+from vpr_jax import sharding
 from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import ica, pca
@@ -232,11 +233,13 @@ def run_autoencoder(
         if log is not None:
             log.close()
     encode = ae.make_encode(result.graphdef)
-    db, query, ms = _encode_ms(lambda x: encode(result.params, x), pair)
+    # Encoding runs on one device: a mesh-replicated model would encode on every device.
+    params = jax.tree.map(sharding.to_host, result.params)
+    db, query, ms = _encode_ms(lambda x: encode(params, x), pair)
     scores, idx = _match(query, db, cfg, ctx)
     basis = None
     if method == "fae":  # what each hidden unit looks for: its weights as an image
-        weights = np.asarray(result.params["encoder"]["kernel"]).T[: cfg.tb.n_basis_images]
+        weights = np.asarray(params["encoder"]["kernel"]).T[: cfg.tb.n_basis_images]
         basis = _images(weights, pair)
     return [
         CellOutput(
