@@ -275,6 +275,11 @@ def run_sweep(cfg: SweepConfig) -> Path:
     logdir = Path(cfg.logdir).expanduser().resolve()
     pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
     mesh = start_devices(cfg.mesh, log)
+    n_devices = mesh_size(mesh)
+    if {"fae", "cae"} & set(cfg.methods) and cfg.train.batch_size % n_devices:
+        raise UserError(f"train.batch_size={cfg.train.batch_size} does not split over "
+                        f"{n_devices} devices: use a multiple of {n_devices}, or set "
+                        "mesh.devices")  # fmt: skip
     prepare_logdir(logdir, cfg)
     # With several processes all compute, process 0 writes the logdir; the others read it
     # (shared file system) to agree on what is left, and write to a folder they delete.

@@ -147,6 +147,18 @@ def test_a_sweep_over_two_processes_equals_one_process_and_only_process_0_writes
     assert (tmp_path / "ck" / "two" / "summer-fall" / "fae").is_dir()
 
 
+def test_a_batch_that_does_not_split_over_the_devices_is_one_line(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments.sweep", "train.batch_size=12",
+         f"logdir={tmp_path / 'runs'}"],
+        cwd=REPO, env=_env(**EIGHT), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]
+    assert "train.batch_size=12" in proc.stderr and "multiple of 8" in proc.stderr
+    assert not (tmp_path / "runs").exists()
+
+
 def test_asking_for_more_devices_than_exist_is_one_line(tmp_path):
     proc = run_cli("mesh.devices=64", f"logdir={tmp_path / 'runs'}")
     assert proc.returncode == 2
