@@ -27,6 +27,7 @@ from omegaconf import OmegaConf
 from vpr_jax.config import MeshConfig, SweepConfig, identity, parse_config, to_dict
 from vpr_jax.data import SEASON_ORDER, Route, load_route
 from vpr_jax.data.splits import Split, make_split
+from vpr_jax.encoders.train import check_batch_splits
 from vpr_jax.errors import UserError
 from vpr_jax.methods import METHODS, SWEEPS_REMOVED_PCS, CellOutput, MethodContext, PairData
 from vpr_jax.metrics import evaluate_top_k
@@ -275,11 +276,8 @@ def run_sweep(cfg: SweepConfig) -> Path:
     logdir = Path(cfg.logdir).expanduser().resolve()
     pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
     mesh = start_devices(cfg.mesh, log)
-    n_devices = mesh_size(mesh)
-    if {"fae", "cae"} & set(cfg.methods) and cfg.train.batch_size % n_devices:
-        raise UserError(f"train.batch_size={cfg.train.batch_size} does not split over "
-                        f"{n_devices} devices: use a multiple of {n_devices}, or set "
-                        "mesh.devices")  # fmt: skip
+    if {"fae", "cae"} & set(cfg.methods):  # before anything is written, not mid-sweep
+        check_batch_splits(cfg.train.batch_size, mesh)
     prepare_logdir(logdir, cfg)
     # With several processes all compute, process 0 writes the logdir; the others read it
     # (shared file system) to agree on what is left, and write to a folder they delete.

@@ -15,8 +15,9 @@ SMALL = ["data.n_frames=700", "split.n_train=300", "split.n_test=120", "split.ga
          "train.epochs=2", "fae.epochs=2"]
 
 
-def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    """``python -m experiments.sweep ARGS`` in a fresh interpreter, as a user runs it.
+def run_cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    """``python -m experiments.sweep ARGS`` in a fresh interpreter, as a user runs it, with
+    ``env`` added to the environment.
 
     Unless the test names one, models are checkpointed next to the logdir (in the test's
     own tmp folder), not in the repository's checkpoints/.
@@ -24,9 +25,9 @@ def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     logdirs = [a.split("=", 1)[1] for a in args if a.startswith("logdir=")]
     if logdirs and not any(a.startswith("train.checkpoint_dir=") for a in args):
         args = (*args, f"train.checkpoint_dir={Path(logdirs[-1]).parent / 'checkpoints'}")
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
     return subprocess.run([sys.executable, "-m", "experiments.sweep", *args], cwd=REPO,
-                          env=env, capture_output=True, text=True, timeout=timeout)
+                          env=env, capture_output=True, text=True)
 
 
 @pytest.fixture(scope="session")

@@ -42,7 +42,7 @@ def _kill_during(line_part: str, args: list[str]) -> str:
                 os.kill(proc.pid, signal.SIGKILL)
                 break
     finally:
-        proc.wait(timeout=300)
+        proc.wait()
     assert proc.returncode == -signal.SIGKILL, "".join(seen[-20:])
     return "".join(seen)
 

@@ -10,6 +10,8 @@ import os
 import socket
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -35,8 +37,7 @@ def _free_port() -> int:
 @pytest.fixture(scope="module")
 def checks():
     proc = subprocess.run([sys.executable, str(REPO / "tests" / "sharded_checks.py")],
-                          cwd=REPO, env=_env(**EIGHT), capture_output=True, text=True,
-                          timeout=600)  # fmt: skip
+                          cwd=REPO, env=_env(**EIGHT), capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -87,12 +88,8 @@ def _same_rows(a: list[dict], b: list[dict]) -> None:
 
 def test_the_sweep_on_eight_devices_equals_the_single_device_sweep(small_sweep, tmp_path):
     logdir, _ = small_sweep
-    proc = subprocess.run(
-        [sys.executable, "-m", "experiments.sweep", *SMALL, "season_pairs=summer-fall",
-         "methods=[raw,pca,ica,fae]",
-         f"logdir={tmp_path / 'runs'}", f"train.checkpoint_dir={tmp_path / 'ck'}"],
-        cwd=REPO, env=_env(**EIGHT), capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
+    proc = run_cli(*SMALL, "season_pairs=summer-fall", "methods=[raw,pca,ica,fae]",
+                   f"logdir={tmp_path / 'runs'}", env=EIGHT)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "mesh: 8 cpu devices" in proc.stdout
     single = [r for r in read_results(logdir / "results.csv")
@@ -100,26 +97,31 @@ def test_the_sweep_on_eight_devices_equals_the_single_device_sweep(small_sweep, 
     _same_rows(read_results(tmp_path / "runs" / "results.csv"), single)
 
 
-def _start(args: list[str], **env: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, *args], cwd=REPO, env=_env(**env),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def _finish(procs: list[subprocess.Popen]) -> None:
-    for p in procs:
-        try:
-            _, err = p.communicate(timeout=300)
-        except subprocess.TimeoutExpired:
-            for q in procs:
-                q.kill()
-            raise
-        assert p.returncode == 0, err[-3000:]
+def _run_together(commands: list[list[str]], logs: Path, **env: str) -> None:
+    """Run cooperating processes to the end. One that fails would leave the others waiting
+    in a collective for ever, so the rest are killed as soon as one exits non-zero."""
+    logs.mkdir(parents=True, exist_ok=True)
+    errs = [open(logs / f"{i}.err", "w") for i in range(len(commands))]  # noqa: SIM115
+    procs = [subprocess.Popen([sys.executable, *args], cwd=REPO, env=_env(**env),
+                              stdout=subprocess.DEVNULL, stderr=err)
+             for args, err in zip(commands, errs, strict=True)]  # fmt: skip
+    while any(p.poll() is None for p in procs):
+        if any(p.poll() not in (None, 0) for p in procs):
+            for p in procs:
+                p.kill()
+        time.sleep(0.2)
+    for err in errs:
+        err.close()
+    report = "\n".join(f"process {i} exit {p.returncode}: {(logs / f'{i}.err').read_text()[-2000:]}"
+                       for i, p in enumerate(procs))  # fmt: skip
+    assert all(p.returncode == 0 for p in procs), report
 
 
 def test_two_processes_on_loopback_compute_one_sharded_similarity(tmp_path):
     port, out = _free_port(), tmp_path / "matches.npz"
     worker = str(REPO / "tests" / "loopback_worker.py")
-    _finish([_start([worker, str(port), "2", str(i), str(out)]) for i in range(2)])
+    _run_together([[worker, str(port), "2", str(i), str(out)] for i in range(2)],
+                  tmp_path / "logs")
     with np.load(out) as z:
         assert int(z["devices"]) == 4 and int(z["processes"]) == 2
         sim = numpy_cosine(z["query"], z["db"])
@@ -141,18 +143,15 @@ def test_a_sweep_over_two_processes_equals_one_process_and_only_process_0_writes
             f"mesh.coordinator=127.0.0.1:{port}", "mesh.num_processes=2",
             f"train.checkpoint_dir={tmp_path / 'ck'}"]  # fmt: skip
     devices = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    _finish([_start([*args, f"mesh.process_id={i}"], **devices) for i in range(2)])
+    _run_together([[*args, f"mesh.process_id={i}"] for i in range(2)], tmp_path / "logs",
+                  **devices)
     _same_rows(read_results(logdir / "results.csv"), read_results(tmp_path / "one" / "results.csv"))
     assert len(read_results(logdir / "results.csv")) == 4  # written once, not once per process
     assert (tmp_path / "ck" / "two" / "summer-fall" / "fae").is_dir()
 
 
 def test_a_batch_that_does_not_split_over_the_devices_is_one_line(tmp_path):
-    proc = subprocess.run(
-        [sys.executable, "-m", "experiments.sweep", "train.batch_size=12",
-         f"logdir={tmp_path / 'runs'}"],
-        cwd=REPO, env=_env(**EIGHT), capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+    proc = run_cli("train.batch_size=12", f"logdir={tmp_path / 'runs'}", env=EIGHT)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]
     assert "train.batch_size=12" in proc.stderr and "multiple of 8" in proc.stderr

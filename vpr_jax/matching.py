@@ -114,12 +114,13 @@ def _top_k_blocks(
 
 
 @functools.partial(jax.jit, static_argnames=("k", "block_size", "starts"))
-def _top_k_query_blocks(query_blocks, db_blocks, n_db, k, block_size, starts):
+def _top_k_query_blocks(query_blocks, db_blocks, n_db, k, block_size, starts, first_index=0):
     """``_top_k_blocks`` for each query block in turn (``lax.map``: one block's scores in
     memory at a time), in one compiled program: a Python loop over query blocks would
     compile again for a shorter last block."""
     return jax.lax.map(
-        lambda q: _top_k_blocks(q, db_blocks, n_db, k, block_size, starts), query_blocks
+        lambda q: _top_k_blocks(q, db_blocks, n_db, k, block_size, starts, first_index),
+        query_blocks,
     )
 
 
@@ -137,10 +138,8 @@ def _sharded_top_k(mesh, k: int, block_size: int, starts: tuple[int, ...]):
 
     def local(query_blocks, db_blocks, n_db):
         first = jax.lax.axis_index(AXIS) * (db_blocks.shape[0] * block_size)
-        scores, idx = jax.lax.map(
-            lambda q: _top_k_blocks(q, db_blocks, n_db, k, block_size, starts, first),
-            query_blocks,
-        )  # (query blocks, starts, block, k) on each device
+        scores, idx = _top_k_query_blocks(query_blocks, db_blocks, n_db, k, block_size,
+                                          starts, first)  # (query blocks, starts, block, k)
         scores = jax.lax.all_gather(scores, AXIS, axis=3, tiled=True)
         idx = jax.lax.all_gather(idx, AXIS, axis=3, tiled=True)
         return _merge_top_k(scores, idx, k)

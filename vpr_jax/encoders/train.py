@@ -136,6 +136,14 @@ def make_eval_loss(graphdef, batch_size: int) -> Callable:
     return eval_loss
 
 
+def check_batch_splits(batch_size: int, mesh: Mesh | None) -> None:
+    """Data-parallel training splits every batch evenly over the mesh's devices."""
+    n_devices = sharding.mesh_size(mesh)
+    if batch_size % n_devices:
+        raise UserError(f"train.batch_size={batch_size} does not split over {n_devices} "
+                        f"devices: use a multiple of {n_devices}, or set mesh.devices")
+
+
 def split_validation(
     images: np.ndarray, n_groups: int, fraction: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -229,10 +237,7 @@ def fit_autoencoder(
     n = len(train_images)
     batch_size = min(settings.batch_size, n)
     steps_per_epoch = n // batch_size  # the tail is dropped: one compiled batch shape
-    n_devices = sharding.mesh_size(mesh)
-    if batch_size % n_devices:
-        raise UserError(f"train.batch_size={batch_size} does not split over {n_devices} "
-                        f"devices: use a multiple of {n_devices}, or set mesh.devices")
+    check_batch_splits(batch_size, mesh)
     augment = AugmentConfig() if settings.augment else None
     train_step = make_train_step(graphdef, tx, augment, mesh)
     eval_loss = make_eval_loss(graphdef, batch_size)
