@@ -21,6 +21,8 @@ from vpr_jax.metrics import PR_CONVENTIONS
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
 SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")
 METHODS = ("raw", "pca", "ica", "fae", "cae")
+# Methods whose cells are indexed by a removed-PC count; the others run once with k = 0.
+SWEEPS_REMOVED_PCS = frozenset({"pca", "ica"})
 ICA_FUNS = ("logcosh", "exp", "cube")
 OPTIMIZERS = ("adam", "adamw", "sgd")
 
@@ -45,7 +47,11 @@ class DataConfig:
     n_frames: int = 3600  # synthetic only: route length in frames per season
     frame_step: int = 1  # keep every step-th frame (10 on the full route gives ~3,577)
     frame_list: str | None = None  # Nordland sources: file of frame names / ranges to keep
-    cache_dir: str = "~/.cache/vpr_jax"  # decoded videos are cached here as .npy
+    cache_dir: str = "~/.cache/vpr_jax"  # decoded videos are cached here as .npz
+    # Places where a season shows a constant frame (tunnel, over-exposure) are always
+    # counted in the run log; true drops them from every season before the split.
+    drop_constant_frames: bool = False
+    constant_std: float = 0.01  # a frame whose pixel std (grey in [0, 1]) is <= this is constant
 
     def __post_init__(self):
         _as_tuple(self, "seasons")
@@ -57,6 +63,8 @@ class DataConfig:
                f"data.seasons={list(self.seasons)} repeats a season: name each once")
         _check(self.n_frames >= 2, f"data.n_frames={self.n_frames} is too small: use >= 2")
         _check(self.frame_step >= 1, f"data.frame_step={self.frame_step} must be >= 1")
+        _check(0 <= self.constant_std < 0.5, f"data.constant_std={self.constant_std} is not "
+               "a pixel standard deviation in [0, 0.5): use e.g. 0.01")
         _check(self.source == "synthetic" or self.root is not None,
                f"data.source={self.source} needs data.root=PATH (the folder with the seasons)")
         _check(self.source != "synthetic" or self.frame_list is None,

@@ -1,0 +1,90 @@
+"""Hostile but valid data through the CLI: a tunnel (black frames in every season), a train
+standing at a station, over-exposed frames, a season shifted by two frames and so shorter
+than the others, a colour image. The sweep must finish, say in the run log what it saw, and
+score finite metrics; constant frames are dropped only when asked."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.conftest import run_cli
+from vpr_jax.data.synthetic import synthetic_route
+from vpr_jax.results import read_results
+
+SEASONS = ("spring", "summer", "fall")
+METRICS = ("recall_at_1", "precision_at_full_recall", "auc_pr", "recall_at_100_precision",
+           "recall_at_5", "recall_at_10")
+# Test places are positions 110..239 of the route: the tunnel, the station and the
+# over-exposed frames all fall among them.
+SPLIT = ["split.n_train=100", "split.gap=10", "split.n_test=130"]
+
+
+@pytest.fixture(scope="module")
+def hostile_root(tmp_path_factory):
+    route = synthetic_route(260, SEASONS, seed=3)
+    images = {s: np.rint(im * 255).astype(np.uint8) for s, im in route.images.items()}
+    images["fall"] = images["fall"][2:]  # fall's frame i shows place i + 2; 258 frames
+    for season in SEASONS:
+        images[season][150:156] = 0  # a tunnel: 6 black places in every season
+    images["fall"][200:203] = 255  # the camera saturates for 3 frames
+    images["spring"][170:180] = images["spring"][170]  # standing 9 more seconds at a station
+    root = tmp_path_factory.mktemp("hostile") / "data"
+    for season, frames in images.items():
+        (root / season).mkdir(parents=True)
+        for i, img in enumerate(frames, start=1):
+            cv2.imwrite(str(root / season / f"images-{i:05d}.png"), img)
+    colour = cv2.cvtColor(images["summer"][9], cv2.COLOR_GRAY2BGR)
+    cv2.imwrite(str(root / "summer" / "images-00010.png"), colour)
+    return root
+
+
+def _run(root, logdir, *args):
+    proc = run_cli("data.source=nordland_images", f"data.root={root}", *SPLIT,
+                   "season_pairs=summer-fall,spring-fall", f"logdir={logdir}", *args)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    return proc, (logdir / "sweep.log").read_text()
+
+
+def _assert_finite(rows):
+    for row in rows:
+        for key in METRICS:
+            assert math.isfinite(row[key]) and 0.0 <= row[key] <= 1.0, (row["run"], key)
+
+
+def test_hostile_route_is_reported_kept_and_scored(hostile_root, tmp_path):
+    logdir = tmp_path / "runs"
+    proc, log = _run(hostile_root, logdir, "methods=[raw,pca,ica,fae]", "removed_pcs=[0,5]",
+                     "ica.n_components=16", "fae.hidden=64", "fae.epochs=2")
+    for line in (
+        "converted colour images to grayscale (summer 1)",
+        "seasons hold different frames: keeping the 258 common to all; frames dropped per "
+        "season: spring 2, summer 2, fall 0",
+        "repeated frames (the same image as the frame before, e.g. a train standing at a "
+        "station): spring 9, summer 0, fall 0; kept",
+        "constant frames (pixel std <= data.constant_std=0.01: black, over-exposed or blank): "
+        "spring 6, summer 6, fall 9, at 9 places; kept (data.drop_constant_frames=true drops "
+        "them)",
+        "sweep: 258 frames per season",
+    ):
+        assert line in proc.stdout and line in log, line
+    rows = read_results(logdir / "results.csv")
+    assert len(rows) == 2 * (1 + 2 + 2 + 1)
+    _assert_finite(rows)
+    # A two-frame shift is within the default tolerance of 2: raw pixels still find most places.
+    raw = {r["season_pair"]: r["recall_at_1"] for r in rows if r["method"] == "raw"}
+    assert raw["summer-fall"] > 0.5, raw
+
+
+def test_constant_frames_are_dropped_when_asked(hostile_root, tmp_path):
+    logdir = tmp_path / "runs"
+    proc, log = _run(hostile_root, logdir, "methods=[raw,pca]", "removed_pcs=[0,5]",
+                     "data.drop_constant_frames=true")
+    assert ("spring 6, summer 6, fall 9, at 9 places; dropped from every season "
+            "(data.drop_constant_frames=true), 249 places left") in log
+    assert "sweep: 249 frames per season" in log
+    rows = read_results(logdir / "results.csv")
+    assert len(rows) == 2 * (1 + 2)
+    _assert_finite(rows)
