@@ -43,6 +43,23 @@ def cosine_similarity(
     return l2_normalize(query_desc) @ l2_normalize(db_desc).T
 
 
+@jax.jit
+def degenerate_rows(desc: Float[Array, "n d"]) -> tuple[Int[Array, ""], Array]:
+    """What makes cosine matching arbitrary: (how many rows are zero, whether all the other
+    rows point the same way).
+
+    A zero row scores 0 against everything (norm at most 1e-6 of the largest row's, or 0);
+    rows that all point one way (pairwise cosine above 1 - 5e-7) score the same against
+    every query. One pass on the device, two scalars to the host.
+    """
+    norms = jnp.sqrt(jnp.sum(desc * desc, axis=1))
+    zero = norms <= jnp.maximum(1e-6 * jnp.max(norms), _EPS)
+    unit = jnp.where(zero[:, None], 0.0, desc / jnp.maximum(norms, _EPS)[:, None])
+    first = unit[jnp.argmin(zero)]  # the first nonzero row (row 0 when all are zero)
+    gap = jnp.sqrt(jnp.sum((unit - first) ** 2, axis=1))  # cosine to it = 1 - gap^2 / 2
+    return jnp.sum(zero), (jnp.max(jnp.where(zero, 0.0, gap)) <= 1e-3) & (jnp.sum(~zero) > 1)
+
+
 def _suffix_scores(query_desc, db_desc, starts):
     """Yield (start index, cosine on features [start:]) for every start, last start first.
 

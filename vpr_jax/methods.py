@@ -25,7 +25,7 @@ from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import ica, pca
 from vpr_jax.encoders.train import TrainingLog, fit_autoencoder, split_validation
 from vpr_jax.errors import UserError
-from vpr_jax.matching import top_k_matches
+from vpr_jax.matching import degenerate_rows, top_k_matches
 
 TOP_K = 10  # enough for recall@10
 
@@ -52,7 +52,7 @@ class CellOutput(NamedTuple):
     basis_name: str = "removed_components"  # TensorBoard tag under basis/
     n_iter: int = 0  # iterations of an iterative fit (0: closed form)
     converged: bool = True  # False when an iterative fit stopped at its iteration limit
-    warning: str | None = None  # one line for the run log (non-convergence)
+    warning: str | None = None  # one line for the run log (non-convergence, degenerate)
 
 
 class MethodContext(NamedTuple):
@@ -70,13 +70,46 @@ def _timed(fn: Callable, *args):
     return out, time.perf_counter() - start
 
 
-def _encode_ms(encode: Callable, pair: PairData) -> tuple[np.ndarray, np.ndarray, float]:
-    """Encode database and queries; ms per image measured on a warm (compiled) function."""
+class Encoded(NamedTuple):
+    db: jax.Array  # (n_db, d) descriptors
+    query: jax.Array  # (n_queries, d)
+    ms_per_image: float  # warm (compiled) encoding time
+    warning: str | None  # descriptors that make matching arbitrary, if any
+
+
+def _encode(encode: Callable, pair: PairData) -> Encoded:
+    """Encode database and queries, timed on a warm function, and check the descriptors."""
     encode(pair.db)  # compile for this shape
     db, seconds_db = _timed(encode, pair.db)
     query, seconds_q = _timed(encode, pair.query)
     ms = 1000 * (seconds_db + seconds_q) / (len(pair.db) + len(pair.query))
-    return db, query, ms
+    return Encoded(db, query, ms, degenerate_warning(db, query))
+
+
+def degenerate_warning(db, query) -> str | None:
+    """One run-log line when descriptors cannot tell places apart (zero descriptors, or all
+    pointing one way): cosine matching of them is arbitrary, so the cell's metrics mean
+    nothing. None when the descriptors are fine."""
+    zero, parallel = {}, []
+    for name, desc in (("database", db), ("query", query)):
+        n_zero, one_way = degenerate_rows(jax.numpy.reshape(desc, (len(desc), -1)))
+        zero[name] = f"{name} {int(n_zero):,} of {len(desc):,}"
+        if bool(one_way):
+            parallel.append(name)
+        if not int(n_zero):
+            del zero[name]
+    found = [f"zero descriptors ({', '.join(zero.values())})"] if zero else []
+    if parallel:
+        found.append(f"the nonzero {' and '.join(parallel)} descriptors all point one way")
+    if not found:
+        return None
+    return (f"{' and '.join(found)}: their matches are arbitrary. Check for constant images "
+            "(data.drop_constant_frames=true) or, for an auto-encoder, dead units (another "
+            "seed, train.learning_rate, more epochs)")
+
+
+def _join(*warnings: str | None) -> str | None:
+    return "; ".join(w for w in warnings if w) or None
 
 
 def shared_pca_fit(
@@ -111,9 +144,10 @@ def run_raw(
     """Raw pixels, centred with the training mean; cosine does the L2 normalisation."""
     del removed_pcs
     mean, fit_s = _timed(lambda x: jax.numpy.mean(pca.flatten(x), axis=0), pair.train)
-    db, query, ms = _encode_ms(lambda x: _centred(x, mean), pair)
-    scores, idx = _match(query, db, cfg, ctx)
-    return [CellOutput("raw", 0, scores[0], idx[0], fit_s, ms, None)]
+    enc = _encode(lambda x: _centred(x, mean), pair)
+    scores, idx = _match(enc.query, enc.db, cfg, ctx)
+    return [CellOutput("raw", 0, scores[0], idx[0], fit_s, enc.ms_per_image, None,
+                       warning=enc.warning)]
 
 
 def run_pca(
@@ -128,17 +162,18 @@ def run_pca(
     if cfg.pca.output == "pixels":
         outputs = []
         for k in removed_pcs:
-            db, query, ms = _encode_ms(lambda x, k=k: pca.encode(state, x, k, "pixels"), pair)
-            scores, idx = _match(query, db, cfg, ctx)
-            outputs.append((k, scores[0], idx[0], ms))
+            enc = _encode(lambda x, k=k: pca.encode(state, x, k, "pixels"), pair)
+            scores, idx = _match(enc.query, enc.db, cfg, ctx)
+            outputs.append((k, scores[0], idx[0], enc))
     else:
-        db, query, ms = _encode_ms(lambda x: pca.project(state, x), pair)
-        scores, idx = _match(query, db, cfg, ctx, starts=removed_pcs)
-        outputs = [(k, scores[i], idx[i], ms) for i, k in enumerate(removed_pcs)]
+        enc = _encode(lambda x: pca.project(state, x), pair)
+        scores, idx = _match(enc.query, enc.db, cfg, ctx, starts=removed_pcs)
+        outputs = [(k, scores[i], idx[i], enc) for i, k in enumerate(removed_pcs)]
     components = _images(state.components[: cfg.tb.n_basis_images], pair)
     return [
-        CellOutput("pca", k, s, i, fit_s, ms, components[:k] if k else None)
-        for k, s, i, ms in outputs
+        CellOutput("pca", k, s, i, fit_s, enc.ms_per_image, components[:k] if k else None,
+                   warning=enc.warning)
+        for k, s, i, enc in outputs
     ]
 
 
@@ -173,8 +208,8 @@ def run_ica(
             ),
             pair.train,
         )
-        db, query, ms = _encode_ms(lambda x, state=state: ica.encode(state, x), pair)
-        scores, idx = _match(query, db, cfg, ctx)
+        enc = _encode(lambda x, state=state: ica.encode(state, x), pair)
+        scores, idx = _match(enc.query, enc.db, cfg, ctx)
         n_iter, converged = int(state.n_iter), bool(state.converged)
         warning = None if converged else (
             f"ICA ({state.unmixing.shape[0]} components, removed_pcs={k}) did not converge: "
@@ -183,9 +218,9 @@ def run_ica(
         )
         basis = _images(np.asarray(ica.mixing(state)).T[: cfg.tb.n_basis_images], pair)
         yield CellOutput(
-            "ica", k, scores[0], idx[0], pca_s + ica_s, ms, basis,
+            "ica", k, scores[0], idx[0], pca_s + ica_s, enc.ms_per_image, basis,
             basis_name="independent_components", n_iter=n_iter, converged=converged,
-            warning=warning,
+            warning=_join(warning, enc.warning),
         )  # fmt: skip
 
 
@@ -235,16 +270,17 @@ def run_autoencoder(
     encode = ae.make_encode(result.graphdef)
     # Encoding runs on one device: a mesh-replicated model would encode on every device.
     params = jax.tree.map(sharding.to_host, result.params)
-    db, query, ms = _encode_ms(lambda x: encode(params, x), pair)
-    scores, idx = _match(query, db, cfg, ctx)
+    enc = _encode(lambda x: encode(params, x), pair)
+    scores, idx = _match(enc.query, enc.db, cfg, ctx)
     basis = None
     if method == "fae":  # what each hidden unit looks for: its weights as an image
         weights = np.asarray(params["encoder"]["kernel"]).T[: cfg.tb.n_basis_images]
         basis = _images(weights, pair)
     return [
         CellOutput(
-            method, 0, scores[0], idx[0], result.train_seconds, ms, basis,
+            method, 0, scores[0], idx[0], result.train_seconds, enc.ms_per_image, basis,
             basis_name="hidden_units", n_iter=result.epochs, converged=result.stopped_early,
+            warning=enc.warning,
         )  # fmt: skip
     ]
 
@@ -268,6 +304,3 @@ METHODS: dict[str, Method] = {
     "fae": run_fae,
     "cae": run_cae,
 }
-
-# Methods whose cells are indexed by a removed-PC count; the others run once with k = 0.
-SWEEPS_REMOVED_PCS = {"pca", "ica"}
