@@ -13,40 +13,22 @@ from __future__ import annotations
 
 import itertools
 import os
-import shutil
+import shlex
+import signal
 import sys
 import tempfile
 from pathlib import Path
 
-import cv2
-import jax
-import numpy as np
-from jax.sharding import Mesh
-from omegaconf import OmegaConf
+import yaml
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
-from vpr_jax.config import MeshConfig, SweepConfig, identity, parse_config, to_dict
-from vpr_jax.data import SEASON_ORDER, Route, load_route
-from vpr_jax.data.splits import Split, make_split
-from vpr_jax.encoders.train import check_batch_splits
+# Only light modules here (no JAX): bad input is answered before JAX, Flax and orbax load.
+from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig, identity, parse_config
+from vpr_jax.data import SEASON_ORDER, load_route
+from vpr_jax.data.splits import make_split
 from vpr_jax.errors import UserError
-from vpr_jax.methods import METHODS, SWEEPS_REMOVED_PCS, CellOutput, MethodContext, PairData
-from vpr_jax.metrics import evaluate_top_k
-from vpr_jax.plots import correct_matches_figure, pr_curves_figure
-from vpr_jax.progress import Bar
-from vpr_jax.results import (
-    append_results,
-    atomic_write_text,
-    cell_key,
-    markdown_table,
-    read_results,
-)
-from vpr_jax.sharding import make_mesh, mesh_size
-from vpr_jax.tb import TrainingRun, match_examples, write_cell_run, write_experiment_config
-
-METRIC_KEYS = ("recall_at_1", "precision_at_full_recall", "auc_pr", "recall_at_100_precision",
-               "recall_at_5", "recall_at_10")
-TIMING_KEYS = ("fit_seconds", "encode_ms_per_image")
-INCOMPLETE = ".incomplete"  # TensorBoard runs being written; moved into place when whole
+from vpr_jax.results import read_results
 
 
 class RunLog:
@@ -96,21 +78,40 @@ def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
     return pairs
 
 
-def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
-    """Refuse unusable or foreign log directories before anything is written."""
-    if logdir.exists() and not logdir.is_dir():
-        raise UserError(f"logdir {logdir} is a file: set logdir=PATH to a folder")
+def saved_identity(path: Path) -> dict:
+    """The identity of a logdir's config.yaml; keys added to the suite since it was written
+    take their defaults (which reproduce what the suite did before they existed)."""
     try:
-        logdir.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=logdir):
+        saved = OmegaConf.load(path)
+    except (OSError, yaml.YAMLError, OmegaConfBaseException) as err:
+        saved = err
+    if not isinstance(saved, DictConfig):
+        raise UserError(f"{path} is not a sweep config ({type(saved).__name__}), so the logdir "
+                        "cannot be resumed safely: use a new logdir=PATH") from None
+    try:
+        saved = OmegaConf.merge(OmegaConf.structured(SweepConfig), saved)
+    except OmegaConfBaseException:
+        pass  # keys this version does not know: compared as they are, and so they differ
+    return identity(OmegaConf.to_container(saved))
+
+
+def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
+    """Refuse unusable or foreign log directories. Creates nothing: the folder is made when
+    the first file is written into it."""
+    existing = next(p for p in (logdir, *logdir.parents) if p.exists())
+    if not existing.is_dir():
+        where = "is a file" if existing == logdir else f"cannot be made: {existing} is a file"
+        raise UserError(f"logdir {logdir} {where}: set logdir=PATH to a folder")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
             pass
     except OSError as err:
-        raise UserError(f"logdir {logdir} is not writable ({err.strerror}): set "
+        raise UserError(f"logdir {logdir} is not writable ({existing}: {err.strerror}): set "
                         "logdir=PATH to a folder you can write") from None
     saved, results = logdir / "config.yaml", logdir / "results.csv"
     if saved.exists():
         now = identity(cfg)
-        before = identity(OmegaConf.to_container(OmegaConf.load(saved)))
+        before = saved_identity(saved)
         differ = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
         if differ:
             raise UserError(f"logdir {logdir} holds results of a different configuration "
@@ -119,6 +120,11 @@ def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
     elif results.exists():
         raise UserError(f"logdir {logdir} has a results.csv but no config.yaml, so it cannot "
                         "be resumed safely: use a new logdir=PATH")
+    try:
+        read_results(results)
+    except (OSError, ValueError) as err:
+        raise UserError(f"{results} is not a results table this sweep can resume ({err}): "
+                        "move it away or use a new logdir=PATH") from None
 
 
 def check_removed_pcs(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> None:
@@ -139,222 +145,62 @@ def check_removed_pcs(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> N
         )
 
 
-def pair_data(route: Route, split: Split, db: str, query: str, database: str) -> PairData:
-    """Images of one pair; ``database="all"`` matches the queries against every frame of the
-    database season (training places included), not only its test places."""
-    images = route.images
-    everything = database == "all"  # the season's own array: no copy of the whole route
-    return PairData(
-        db_season=db,
-        query_season=query,
-        train=np.concatenate([images[db][split.train], images[query][split.train]]),
-        db=images[db] if everything else images[db][split.test],
-        query=images[query][split.test],
-        db_ids=route.frame_ids if everything else route.frame_ids[split.test],
-        query_ids=route.frame_ids[split.test],
-        fits={},
-    )
-
-
-def method_context(
-    cfg: SweepConfig, logdir: Path, out: Path, pair: str, log: RunLog, mesh: Mesh | None
-) -> MethodContext:
-    """Checkpoints under <train.checkpoint_dir>/<logdir name>/<pair>/<method>/; a training
-    run per auto-encoder next to its cell's run (under ``out``, where this process writes)."""
-    ident = identity(cfg)
-    return MethodContext(
-        checkpoint_dir=Path(cfg.train.checkpoint_dir).expanduser().resolve() / logdir.name / pair,
-        training_log=lambda method: TrainingRun(out / pair / f"{method}_training", log),
-        identity={k: ident[k] for k in ("data", "split", "seed")},  # + training settings
-        mesh=mesh,
-    )
-
-
-def start_devices(cfg: MeshConfig, log: RunLog) -> Mesh | None:
-    """Join the other processes (``mesh.distributed``), then build the device mesh."""
-    if cfg.distributed:
-        # CPU devices of several processes talk through gloo; GPUs use NCCL regardless.
-        jax.config.update("jax_cpu_collectives_implementation", "gloo")
-        try:
-            jax.distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
-        except (RuntimeError, ValueError) as err:
-            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-            raise UserError(
-                f"mesh.distributed=true could not join the other processes ({first}): start "
-                "one process per host under a launcher JAX detects (SLURM, Open MPI), or set "
-                "mesh.coordinator=HOST:PORT, mesh.num_processes and mesh.process_id"
-            ) from None
-    try:
-        mesh = make_mesh(cfg.devices)
-    except ValueError as err:
-        raise UserError(str(err)) from None
-    if mesh is not None:
-        devices = mesh.devices.flat
-        log(f"mesh: {mesh_size(mesh)} {devices[0].platform} devices in "
-            f"{jax.process_count()} process(es); PCA samples, matching database and "
-            "training batches are split over them")  # fmt: skip
-    return mesh
-
-
-def run_name(pair: str, method: str, k: int) -> str:
-    return f"{pair}/{method}_k{k:03d}" if method in SWEEPS_REMOVED_PCS else f"{pair}/{method}"
-
-
-def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput) -> dict:
-    """Evaluate one cell and write its TensorBoard run; returns its results.csv row."""
-    pair = f"{data.db_season}-{data.query_season}"
-    ev = evaluate_top_k(out.top_scores, out.top_indices, data.query_ids, data.db_ids,
-                        cfg.tolerance, pr_convention=cfg.pr_convention)
-    scalars = ev.scalars()
-    timings = {"fit_seconds": out.fit_seconds, "encode_ms_per_image": out.encode_ms_per_image}
-    fit = {"n_iter": out.n_iter, "converged": int(out.converged)}
-    name = run_name(pair, out.method, out.removed_pcs)
-    staging = logdir / INCOMPLETE / name
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir(parents=True)
-    write_cell_run(
-        staging,
-        scalars={**{f"metrics/{k}": v for k, v in scalars.items()},
-                 **{f"timing/{k}": v for k, v in timings.items()},
-                 **{f"fit/{k}": v for k, v in fit.items()}},
-        hparams={"season_pair": pair, "method": out.method,
-                 "removed_pcs": float(out.removed_pcs)},
-        trial_id=name,
-        best_scores=ev.best_scores,
-        best_correct=ev.best_correct,
-        has_match=ev.has_match,
-        n_thresholds=cfg.tb.pr_thresholds,
-        pr_convention=cfg.pr_convention,
-        examples=match_examples(data.query, data.db, data.query_ids, data.db_ids,
-                                out.top_indices[:, 0], cfg.tb.n_match_examples),
-        basis_images=out.basis_images,
-        basis_tag=f"basis/{out.basis_name}",
-    )
-    np.savez(staging / "curve.npz", precision=ev.pr_precision, recall=ev.pr_recall)
-    final = logdir / name
-    final.parent.mkdir(parents=True, exist_ok=True)
-    os.replace(staging, final)
-    return {
-        "season_pair": pair, "db_season": data.db_season, "query_season": data.query_season,
-        "method": out.method, "removed_pcs": out.removed_pcs, "n_train": len(data.train),
-        "n_test": len(data.query), "tolerance": cfg.tolerance, **scalars, **timings, **fit,
-        "seed": cfg.seed, "run": name,
-    }
-
-
-def log_cell(log: RunLog, counter: str, row: dict, out: CellOutput) -> None:
-    k_text = f" k={out.removed_pcs}" if out.method in SWEEPS_REMOVED_PCS else ""
-    iters = f"  {out.n_iter} iterations" if out.n_iter else ""
-    log(
-        f"{counter} {row['season_pair']} {out.method}{k_text}: recall@1 "
-        f"{row['recall_at_1']:.3f}  auc_pr {row['auc_pr']:.3f}  "
-        f"R@100P {row['recall_at_100_precision']:.3f}  "
-        f"fit {row['fit_seconds']:.2f} s{iters}  {row['encode_ms_per_image']:.4f} ms/img"
-    )
-    if out.warning:
-        log(f"warning: {row['season_pair']} {out.method}{k_text}: {out.warning}")
-
-
-def write_summaries(logdir: Path) -> None:
-    rows = read_results(logdir / "results.csv")
-    if not rows:
-        return
-    atomic_write_text(logdir / "results.md", markdown_table(rows))
-    figures = logdir / "figures"
-    figures.mkdir(exist_ok=True)
-
-    def load_curve(row):
-        with np.load(logdir / row["run"] / "curve.npz") as z:
-            return z["precision"], z["recall"]
-
-    pr_curves_figure(rows, load_curve, figures / "pr_curves.png")
-    correct_matches_figure(rows, figures / "correct_matches.png")
-
-
 def run_sweep(cfg: SweepConfig) -> Path:
+    """Validate config, logdir and data, then run every cell not yet in results.csv."""
     log = RunLog()
     logdir = Path(cfg.logdir).expanduser().resolve()
     pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
-    mesh = start_devices(cfg.mesh, log)
-    if {"fae", "cae"} & set(cfg.methods):  # before anything is written, not mid-sweep
-        check_batch_splits(cfg.train.batch_size, mesh)
     prepare_logdir(logdir, cfg)
-    # With several processes all compute, process 0 writes the logdir; the others read it
-    # (shared file system) to agree on what is left, and write to a folder they delete.
-    primary = jax.process_index() == 0
-    out = logdir if primary else Path(tempfile.mkdtemp(prefix="vpr_jax-replica-"))
-    try:
-        return _run_cells(cfg, log, logdir, out, pairs, mesh)
-    finally:
-        if not primary:
-            shutil.rmtree(out, ignore_errors=True)
-
-
-def _run_cells(cfg: SweepConfig, log: RunLog, logdir: Path, out: Path, pairs, mesh) -> Path:
     route = load_route(cfg.data, cfg.seed, log)
     split = make_split(route.frame_ids, cfg.split)
-    check_removed_pcs(cfg, 2 * len(split.train), int(np.prod(route.images[pairs[0][0]].shape[1:])))
+    check_removed_pcs(cfg, 2 * len(split.train), int(route.images[pairs[0][0]][0].size))
 
-    # Validation is over: from here on the logdir is written.
-    atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(to_dict(cfg)))
-    log.open(out / "sweep.log")
-    shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
-    log(f"sweep: {len(route)} frames per season, {len(split.train)} training and "
-        f"{len(split.test)} test places per season, pairs {[f'{a}-{b}' for a, b in pairs]}, "
-        f"methods {list(cfg.methods)}, logdir {logdir}")
-    ks = {m: cfg.removed_pcs if m in SWEEPS_REMOVED_PCS else (0,) for m in cfg.methods}
-    write_experiment_config(
-        out,
-        {"season_pair": [f"{a}-{b}" for a, b in pairs], "method": list(cfg.methods),
-         "removed_pcs": [float(k) for m in cfg.methods for k in ks[m]]},
-        [f"metrics/{k}" for k in METRIC_KEYS] + [f"timing/{k}" for k in TIMING_KEYS],
-    )
+    from experiments.cells import run_cells  # JAX, Flax, orbax: once the cheap checks pass
 
-    done = {cell_key(r) for r in read_results(logdir / "results.csv")}
-    cells = [(p, m, k) for p in pairs for m in cfg.methods for k in ks[m]]
-    todo = [c for c in cells if (f"{c[0][0]}-{c[0][1]}", c[1], c[2]) not in done]
-    if len(todo) < len(cells):
-        log(f"resuming: {len(cells) - len(todo)} of {len(cells)} cells already in results.csv")
-    finished = len(cells) - len(todo)
-    with Bar(len(todo), "sweep cells") as bar:
-        for db, query in pairs:
-            pair = f"{db}-{query}"
-            data = None  # built on first use; its PCA fit then serves PCA and ICA
-            ctx = method_context(cfg, logdir, out, pair, log, mesh)
-            for method in cfg.methods:
-                pending = tuple(k for (p, m, k) in todo if p == (db, query) and m == method)
-                if not pending:
-                    continue
-                if data is None:
-                    data = pair_data(route, split, db, query, cfg.split.database)
-                for cell in METHODS[method](data, pending, cfg, ctx):
-                    # A run left by a crash before its row was written is redone.
-                    shutil.rmtree(out / run_name(pair, method, cell.removed_pcs), True)
-                    row = finish_cell(out, cfg, data, cell)
-                    append_results(out / "results.csv", [row])
-                    finished += 1
-                    bar.advance()
-                    log_cell(log, f"[{finished}/{len(cells)}]", row, cell)
-    write_summaries(out)
-    log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
-        f"view with: tensorboard --logdir {logdir}")
-    return logdir
+    return run_cells(cfg, log, logdir, pairs, route, split)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a cluster's scheduler ending the job, ``kill``): stop as on Ctrl-C."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+def interrupted_line(argv: list[str], cfg: SweepConfig | None) -> str:
+    """What was saved and the command that resumes."""
+    command = shlex.join(["python", "-m", "experiments.sweep", *argv])
+    if cfg is None:
+        return f"interrupted before anything was written; run again with: {command}"
+    results = Path(cfg.logdir).expanduser().resolve() / "results.csv"
+    try:
+        n = len(read_results(results))
+    except (OSError, ValueError):  # not ours: prepare_logdir refused it, nothing was written
+        n = 0
+    saved = f"{n} finished cell(s) are saved in {results}" if n else "no cell had finished"
+    return f"interrupted: {saved}; resume with: {command}"
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    # Our readers report unreadable files themselves, in one line; OpenCV's own log would
-    # add a second, less helpful one.
+    # Our readers report unreadable files themselves, in one line; OpenCV's and FFmpeg's own
+    # logs would add more, less helpful ones. FFmpeg reads its level when cv2 is imported.
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+    import cv2  # every data source reads or renders with it
+
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    signal.signal(signal.SIGTERM, _terminate)
+    cfg = None
     try:
-        run_sweep(parse_config(argv))
+        cfg = parse_config(argv)
+        run_sweep(cfg)
     except UserError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("interrupted: finished cells are saved in results.csv; run the same command "
-              "again to resume", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as stop:
+        print(interrupted_line(argv, cfg), file=sys.stderr)
+        return 128 + (signal.SIGTERM if isinstance(stop, Terminated) else signal.SIGINT)
     return 0
 
 

@@ -2,6 +2,7 @@
 result, and the same seed gives the same table."""
 
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -29,22 +30,32 @@ def _cells(rows: list[dict]) -> dict:
     return {key(r): {m: r[m] for m in METRICS} for r in rows}
 
 
-def _kill_during(line_part: str, args: list[str]) -> str:
-    """Start the sweep, SIGKILL it once a line containing ``line_part`` is printed."""
-    proc = subprocess.Popen([sys.executable, "-m", "experiments.sweep", *args], cwd=REPO,
+# ``python -m experiments.sweep ARGS`` with Ctrl-C raising KeyboardInterrupt as in a terminal,
+# also where the test runner was started with SIGINT ignored (a background job of a script).
+AS_IN_A_TERMINAL = ("import runpy, signal, sys; "
+                    "signal.signal(signal.SIGINT, signal.default_int_handler); "
+                    "sys.argv[0] = 'experiments.sweep'; "
+                    "runpy.run_module('experiments.sweep', run_name='__main__', alter_sys=True)")
+
+
+def _signal_during(line_part: str, args: list[str], sig=signal.SIGKILL):
+    """Start the sweep, send it ``sig`` once a line containing ``line_part`` is printed;
+    returns (exit code, stdout up to there, stderr)."""
+    proc = subprocess.Popen([sys.executable, "-c", AS_IN_A_TERMINAL, *args], cwd=REPO,
                             env={**os.environ, "PYTHONPATH": str(REPO)}, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)  # fmt: skip
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
     seen = []
     try:
         for line in proc.stdout:
             seen.append(line)
             if line_part in line:
-                os.kill(proc.pid, signal.SIGKILL)
+                proc.send_signal(sig)
                 break
+        seen.extend(proc.stdout)
+        err = proc.stderr.read()
     finally:
         proc.wait()
-    assert proc.returncode == -signal.SIGKILL, "".join(seen[-20:])
-    return "".join(seen)
+    return proc.returncode, "".join(seen), err
 
 
 def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp_path):
@@ -53,7 +64,8 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
 
     logdir, ck = tmp_path / "cut" / "runs", tmp_path / "cut" / "checkpoints"
     args = [*KILLABLE, f"logdir={logdir}", f"train.checkpoint_dir={ck}"]
-    printed = _kill_during("spring-fall fae epoch 3/6", args)
+    code, printed, _ = _signal_during("spring-fall fae epoch 3/6", args)
+    assert code == -signal.SIGKILL, printed[-2000:]
     assert "summer-fall fae:" in printed  # the first pair's cells were done before the kill
     rows_at_kill = read_results(logdir / "results.csv")
     assert 0 < len(rows_at_kill) < 4
@@ -75,6 +87,34 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
         assert len(steps) == len(set(steps)), f"{tag} has duplicated steps"
         assert steps == sorted(steps)
     assert len(ea.Scalars("loss/validation")) == 6  # one per epoch, none lost
+
+
+def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):
+    logdir, ck = tmp_path / "runs", tmp_path / "checkpoints"
+    args = [*KILLABLE, f"logdir={logdir}", f"train.checkpoint_dir={ck}"]
+    code, printed, err = _signal_during("summer-fall fae epoch 2/6", args, signal.SIGINT)
+    assert code == 130, (printed[-2000:], err)
+    assert "Traceback" not in err + printed
+    (line,) = err.strip().splitlines()
+    saved = f"interrupted: 1 finished cell(s) are saved in {logdir / 'results.csv'}; "
+    assert line.startswith(saved + "resume with: python -m experiments.sweep "), line
+    assert [r["method"] for r in read_results(logdir / "results.csv")] == ["raw"]
+
+    command = shlex.split(line.split("resume with: ", 1)[1])
+    assert command[:3] == ["python", "-m", "experiments.sweep"]
+    again = run_cli(*command[3:])
+    assert again.returncode == 0, again.stderr
+    assert "resuming: 1 of 4 cells" in again.stdout
+    assert "summer-fall fae: resuming after epoch" in again.stdout
+    assert len(_cells(read_results(logdir / "results.csv"))) == 4
+
+
+def test_sigterm_stops_like_ctrl_c(tmp_path):
+    args = [*KILLABLE, f"logdir={tmp_path / 'runs'}"]
+    code, printed, err = _signal_during("summer-fall fae epoch 2/6", args, signal.SIGTERM)
+    assert code == 128 + signal.SIGTERM, (printed[-2000:], err)
+    (line,) = err.strip().splitlines()
+    assert line.startswith("interrupted: 1 finished cell(s) are saved in "), line
 
 
 def test_the_same_seed_gives_the_same_table(small_sweep, tmp_path):

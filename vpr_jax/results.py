@@ -47,16 +47,28 @@ def _parse(row: dict) -> dict:
 
 
 def read_results(path: Path) -> list[dict]:
-    """Rows of an existing results.csv (typed), or [] when there is none."""
+    """Rows of an existing results.csv (typed), or [] when there is none.
+
+    Raises ValueError naming the first problem when the file is not such a table.
+    """
     path = Path(path)
     if not path.exists():
         return []
     with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        missing = set(COLUMNS) - set(reader.fieldnames or ())
-        if missing:
-            raise ValueError(f"{path} lacks columns {sorted(missing)}")
-        return [_parse(row) for row in reader]
+        try:
+            reader = csv.DictReader(f)
+            missing = set(COLUMNS) - set(reader.fieldnames or ())
+            if missing:
+                raise ValueError(f"lacks columns {', '.join(sorted(missing))}")
+            rows = []
+            for row in reader:
+                try:
+                    rows.append(_parse(row))
+                except (TypeError, ValueError):
+                    raise ValueError(f"line {reader.line_num} is not a row of numbers") from None
+            return rows
+        except csv.Error as err:
+            raise ValueError(str(err)) from None
 
 
 def append_results(path: Path, new_rows: list[dict]) -> list[dict]:

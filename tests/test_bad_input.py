@@ -1,0 +1,223 @@
+"""The bad-input catalogue: every case runs the CLI in a subprocess and must end in one line
+naming the problem and the fix, exit code 2, no traceback, and the log directory exactly as
+it was. (Input the suite accepts with a note, such as colour images or seasons of different
+lengths, is tested in test_hostile_data.py.)"""
+
+import hashlib
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from tests.conftest import SMALL, run_cli
+from tests.test_nordland import write_video
+from vpr_jax.config import parse_config, to_dict
+
+
+def _snapshot(folder: Path) -> dict:
+    if not folder.exists():
+        return {}
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _release(root: Path, seasons=("spring", "summer", "fall"), ids=range(1, 5), shape=(32, 64)):
+    for season in seasons:
+        (root / season).mkdir(parents=True, exist_ok=True)
+        for i in ids:
+            img = np.full(shape, 40 + i, np.uint8)
+            cv2.imwrite(str(root / season / f"images-{i:05d}.png"), img)
+    return root
+
+
+def _assert_refused(proc, *words):
+    assert proc.returncode == 2, (proc.returncode, proc.stdout, proc.stderr)
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    for word in words:
+        assert word in lines[0], lines[0]
+
+
+def _corrupt(root):
+    path = _release(root) / "summer" / "images-00002.png"
+    path.write_bytes(path.read_bytes()[:20])
+    return _images(root)
+
+
+def _zero_bytes(root):
+    path = _release(root) / "fall" / "images-00004.png"
+    path.write_bytes(b"")
+    return _images(root)
+
+
+def _wrong_size(root):
+    _release(root)
+    cv2.imwrite(str(root / "fall" / "images-00003.png"), np.zeros((48, 64), np.uint8))
+    return _images(root)
+
+
+def _no_common(root):
+    _release(root, seasons=("spring", "summer"), ids=range(1, 4))
+    _release(root, seasons=("fall",), ids=range(10, 14))
+    return _images(root)
+
+
+def _absent_in_list(root):
+    listing = root.parent / "frames.txt"
+    listing.write_text("# the clean stretch\n1-3\nimages-00007.png\n")
+    return [*_images(_release(root)), f"data.frame_list={listing}"]
+
+
+def _images(root):
+    return ["data.source=nordland_images", f"data.root={root}"]
+
+
+def _videos(root, seasons=("spring", "summer", "fall"), n_frames=50):
+    for season in seasons:
+        write_video(root / f"{season}.avi", 25.0, n_frames)
+    return ["data.source=nordland_videos", f"data.root={root}",
+            f"data.cache_dir={root.parent / 'cache'}"]
+
+
+def _unopenable_video(root):
+    args = _videos(root, seasons=("spring", "fall"))
+    (root / "summer.mp4").write_bytes(np.random.default_rng(0).bytes(4096))
+    return args
+
+
+def _short_video(root):
+    args = _videos(root, seasons=("spring", "summer"))
+    write_video(root / "fall.avi", 25.0, 10)  # 0.4 s
+    return args
+
+
+def _poisoned_cache(value):
+    def make(root):
+        args = _videos(root)
+        # A first run decodes and caches the videos, then stops at the split (2 seconds of
+        # video are too few places): the cache is real, written by the reader.
+        first = run_cli(*args, f"logdir={root.parent / 'first'}")
+        _assert_refused(first, "split")
+        cache = next((root.parent / "cache").glob("summer*.npz"))
+        with np.load(cache) as z:
+            frames, ids = z["frames"].astype(np.float32) / 255, z["frame_ids"]
+        frames[1, 5, 7] = value
+        np.savez(cache, frames=frames, frame_ids=ids)
+        return args
+    return make
+
+
+DATA_CASES = {
+    "missing root": (lambda root: _images(root / "absent"), ["does not exist", "data.root"]),
+    "empty root": (_images, ["data.root"]),
+    "missing season": (lambda root: _images(_release(root, seasons=("spring", "summer"))),
+                       ["fall"]),
+    "corrupt image": (_corrupt, ["images-00002.png", "re-copy"]),
+    "zero-byte image": (_zero_bytes, ["images-00004.png", "empty (0 bytes)"]),
+    "wrong size": (_wrong_size, ["images-00003.png", "data.source=folders"]),
+    "no common frames": (_no_common, ["share no frame"]),
+    "frame list naming absent frames": (_absent_in_list, ["frames.txt", "first: 7",
+                                                          "remove them from the list"]),
+    "video that cannot be opened": (_unopenable_video, ["summer.mp4", "cannot be opened",
+                                                        "re-encode"]),
+    "video shorter than one second": (_short_video, ["fall.avi", "lasts only 0.40 s"]),
+    "NaN in the video cache": (_poisoned_cache(np.nan), ["NaN or Inf", "delete it"]),
+    "Inf in the video cache": (_poisoned_cache(np.inf), ["NaN or Inf", "delete it"]),
+}
+
+
+@pytest.mark.parametrize("case", DATA_CASES)
+def test_bad_data(case, tmp_path):
+    make, words = DATA_CASES[case]
+    root = tmp_path / "data"
+    root.mkdir()
+    args = make(root)
+    logdir = tmp_path / "runs"
+    logdir.mkdir()
+    (logdir / "keep.txt").write_text("mine")
+    proc = run_cli(*args, f"logdir={logdir}")
+    _assert_refused(proc, *words)
+    assert _snapshot(logdir) == {"keep.txt": hashlib.sha256(b"mine").hexdigest()}
+
+
+CONFIG_CASES = {
+    "unknown key": (["method=raw"], ["method"]),
+    "wrong type": (["tolerance=two"], ["tolerance"]),
+    "bad pair name": (["season_pairs=summer_fall"], ["summer_fall", "season_pairs"]),
+    "pair of one season": (["season_pairs=fall-fall"], ["fall-fall"]),
+    "pair outside seasons": (["season_pairs=summer-winter"], ["winter", "data.seasons"]),
+    "negative removed count": (["removed_pcs=[-1,5]"], ["removed_pcs"]),
+    "removed count leaves nothing": ([*SMALL, "removed_pcs=[0,599]"], ["599", "below 599"]),
+    "more ICs than the data allow": (
+        [*SMALL, "ica.n_components=590"],
+        ["ica.n_components=590", "up to 20", "ica.n_components <= 579"],
+    ),
+    "ICs not a count": (["ica.n_components=many"], ["ica.n_components=many", "all"]),
+    "unknown ICA contrast": (["ica.fun=tanh"], ["ica.fun=tanh", "logcosh"]),
+}
+
+
+@pytest.mark.parametrize("case", CONFIG_CASES)
+def test_bad_config(case, tmp_path):
+    args, words = CONFIG_CASES[case]
+    proc = run_cli(*args, f"logdir={tmp_path / 'runs'}")
+    _assert_refused(proc, *words)
+    assert _snapshot(tmp_path / "runs") == {}
+
+
+def test_logdir_that_is_a_file(tmp_path):
+    path = tmp_path / "runs"
+    path.write_text("not a folder")
+    _assert_refused(run_cli(f"logdir={path}"), "is a file")
+    assert path.read_text() == "not a folder"
+
+
+def test_logdir_that_cannot_be_written():
+    # /proc refuses new folders even to root, unlike a chmod-ed folder.
+    _assert_refused(run_cli("logdir=/proc/vpr_jax_runs"), "not writable", "logdir")
+
+
+def _our_config() -> str:
+    return OmegaConf.to_yaml(to_dict(parse_config([])))
+
+
+LOGDIR_CASES = {
+    "results.csv without config.yaml": (
+        {"results.csv": "season_pair,recall_at_1\nsummer-fall,0.5\n"},
+        ["no config.yaml", "new logdir=PATH"],
+    ),
+    "results.csv of another tool": (
+        {"config.yaml": _our_config(), "results.csv": "query,match\n1,1\n"},
+        ["results.csv is not a results table", "lacks columns", "move it away"],
+    ),
+    "config.yaml that is not a config": (
+        {"config.yaml": "methods: [raw\n"}, ["config.yaml is not a sweep config"]
+    ),
+}
+
+
+@pytest.mark.parametrize("case", LOGDIR_CASES)
+def test_foreign_logdir(case, tmp_path):
+    files, words = LOGDIR_CASES[case]
+    logdir = tmp_path / "runs"
+    logdir.mkdir()
+    for name, text in files.items():
+        (logdir / name).write_text(text)
+    before = _snapshot(logdir)
+    _assert_refused(run_cli(f"logdir={logdir}"), *words)
+    assert _snapshot(logdir) == before
+
+
+def test_finished_logdir_is_untouched_by_bad_reruns(small_sweep, tmp_path):
+    finished, _ = small_sweep
+    logdir = tmp_path / "runs"
+    shutil.copytree(finished, logdir)
+    before = _snapshot(logdir)
+    _assert_refused(run_cli(*SMALL, "tolerance=3", f"logdir={logdir}"),
+                    "different configuration", "tolerance")
+    _assert_refused(run_cli(*SMALL, "removed_pcs=[0,900]", f"logdir={logdir}"), "900")
+    assert _snapshot(logdir) == before
