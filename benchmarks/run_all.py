@@ -7,6 +7,7 @@ Rows (seed's sizes: 5,000 x 2,048 training images, 3,569 queries x 3,569 databas
   removed-PC sweep, 6 counts vs one count (encode + match)                       <= 1.5x
   FastICA, 256 components    vs scikit-learn FastICA(algorithm="parallel")       <= 0.2x
   matching, top-10 cosine    vs numpy brute force                                <= 1.2x
+  sequence matching, ds=10   vs the same search in numpy, a loop over queries    <= 1.0x
   encode ms/image            vs the seed's Table 5 (GTX 1060): auto-encoders <= 0.1x (their
                              issue's goal); PCA and ICA <= 1.0x: projecting onto all 2,048
                              components is 8.4 MFLOP an image, and 0.1x of the seed's 0.1 ms
@@ -36,6 +37,7 @@ from bench_autoencoders import MODELS as AE_MODELS
 from bench_ica import fit_ours as fit_ica
 from bench_ica import fit_sklearn as fit_sklearn_ica
 from bench_linear import REMOVED_PCS, numpy_top_k
+from bench_sequence import measure as measure_sequence
 from common import seed_route, timed
 from sklearn.decomposition import PCA
 
@@ -95,6 +97,9 @@ def linear_rows(table: Table, train, db, query, repeats: int) -> None:
     _, ours = timed(lambda: top_k_matches(query, db, 10), repeats)
     _, peer = timed(lambda: numpy_top_k(query, db, 10), repeats)
     table.add("matching, top-10 of 3,569 x 3,569", ours, peer, "numpy brute force", 1.2)
+    seq = measure_sequence(query, db, 10, repeats)
+    table.add("sequence matching ds=10, 3,569 x 3,569", seq["ours"], seq["peer"],
+              "numpy loop over queries", 1.0)
 
     both = np.concatenate([db, query])
     _, enc = timed(lambda: pca.project(state, both), repeats)
