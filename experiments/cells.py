@@ -22,9 +22,9 @@ from vpr_jax.data import Route
 from vpr_jax.data.splits import Split
 from vpr_jax.encoders.train import check_batch_splits
 from vpr_jax.errors import UserError
-from vpr_jax.methods import METHODS, CellOutput, MethodContext, PairData
+from vpr_jax.methods import METHODS, CellOutput, MethodContext, PairData, with_sequence
 from vpr_jax.metrics import evaluate_top_k
-from vpr_jax.plots import correct_matches_figure, pr_curves_figure
+from vpr_jax.plots import correct_matches_figure, pr_curves_figure, recall_vs_ds_figure
 from vpr_jax.progress import Bar
 from vpr_jax.results import (
     append_results,
@@ -102,11 +102,14 @@ def method_context(
     )
 
 
-def run_name(pair: str, method: str, k: int) -> str:
-    return f"{pair}/{method}_k{k:03d}" if method in SWEEPS_REMOVED_PCS else f"{pair}/{method}"
+def run_name(pair: str, method: str, k: int, ds: int = 1) -> str:
+    """``summer-fall/pca_k005``, ``summer-fall/fae``; sequence cells add ``_ds10``."""
+    name = f"{pair}/{method}_k{k:03d}" if method in SWEEPS_REMOVED_PCS else f"{pair}/{method}"
+    return name if ds == 1 else f"{name}_ds{ds:02d}"
 
 
-def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput) -> dict:
+def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput,
+                ds: int = 1) -> dict:
     """Evaluate one cell and write its TensorBoard run; returns its results.csv row."""
     pair = f"{data.db_season}-{data.query_season}"
     ev = evaluate_top_k(out.top_scores, out.top_indices, data.query_ids, data.db_ids,
@@ -114,7 +117,7 @@ def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput)
     scalars = ev.scalars()
     timings = {"fit_seconds": out.fit_seconds, "encode_ms_per_image": out.encode_ms_per_image}
     fit = {"n_iter": out.n_iter, "converged": int(out.converged)}
-    name = run_name(pair, out.method, out.removed_pcs)
+    name = run_name(pair, out.method, out.removed_pcs, ds)
     staging = logdir / INCOMPLETE / name
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
@@ -124,7 +127,7 @@ def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput)
                  **{f"timing/{k}": v for k, v in timings.items()},
                  **{f"fit/{k}": v for k, v in fit.items()}},
         hparams={"season_pair": pair, "method": out.method,
-                 "removed_pcs": float(out.removed_pcs)},
+                 "removed_pcs": float(out.removed_pcs), "ds": float(ds)},
         trial_id=name,
         best_scores=ev.best_scores,
         best_correct=ev.best_correct,
@@ -142,14 +145,16 @@ def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput)
     os.replace(staging, final)
     return {
         "season_pair": pair, "db_season": data.db_season, "query_season": data.query_season,
-        "method": out.method, "removed_pcs": out.removed_pcs, "n_train": len(data.train),
-        "n_test": len(data.query), "tolerance": cfg.tolerance, **scalars, **timings, **fit,
+        "method": out.method, "removed_pcs": out.removed_pcs, "ds": ds,
+        "n_train": len(data.train), "n_test": len(data.query), "tolerance": cfg.tolerance,
+        **scalars, **timings, **fit,
         "seed": cfg.seed, "run": name,
     }
 
 
 def log_cell(log: RunLog, counter: str, row: dict, out: CellOutput) -> None:
     k_text = f" k={out.removed_pcs}" if out.method in SWEEPS_REMOVED_PCS else ""
+    k_text += f" ds={row['ds']}" if row["ds"] != 1 else ""
     iters = f"  {out.n_iter} iterations" if out.n_iter else ""
     log(
         f"{counter} {row['season_pair']} {out.method}{k_text}: recall@1 "
@@ -175,6 +180,8 @@ def write_summaries(logdir: Path) -> None:
 
     pr_curves_figure(rows, load_curve, figures / "pr_curves.png")
     correct_matches_figure(rows, figures / "correct_matches.png")
+    if len({r["ds"] for r in rows}) > 1:
+        recall_vs_ds_figure(rows, figures / "recall_vs_ds.png")
 
 
 def run_cells(
@@ -211,16 +218,18 @@ def _cells(cfg: SweepConfig, log: RunLog, logdir: Path, out: Path, pairs, mesh: 
         f"{len(split.test)} test places per season, pairs {[f'{a}-{b}' for a, b in pairs]}, "
         f"methods {list(cfg.methods)}, logdir {logdir}")
     ks = {m: cfg.removed_pcs if m in SWEEPS_REMOVED_PCS else (0,) for m in cfg.methods}
+    lengths = cfg.sequence_lengths
     write_experiment_config(
         out,
         {"season_pair": [f"{a}-{b}" for a, b in pairs], "method": list(cfg.methods),
-         "removed_pcs": [float(k) for m in cfg.methods for k in ks[m]]},
+         "removed_pcs": [float(k) for m in cfg.methods for k in ks[m]],
+         "ds": [float(ds) for ds in lengths]},
         [f"metrics/{k}" for k in METRIC_KEYS] + [f"timing/{k}" for k in TIMING_KEYS],
     )
 
     done = {cell_key(r) for r in read_results(logdir / "results.csv")}
-    cells = [(p, m, k) for p in pairs for m in cfg.methods for k in ks[m]]
-    todo = [c for c in cells if (f"{c[0][0]}-{c[0][1]}", c[1], c[2]) not in done]
+    cells = [(p, m, k, ds) for p in pairs for m in cfg.methods for k in ks[m] for ds in lengths]
+    todo = {c for c in cells if (f"{c[0][0]}-{c[0][1]}", *c[1:]) not in done}
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} cells already in results.csv")
     finished = len(cells) - len(todo)
@@ -230,19 +239,26 @@ def _cells(cfg: SweepConfig, log: RunLog, logdir: Path, out: Path, pairs, mesh: 
             data = None  # built on first use; its PCA fit then serves PCA and ICA
             ctx = method_context(cfg, logdir, out, pair, log, mesh)
             for method in cfg.methods:
-                pending = tuple(k for (p, m, k) in todo if p == (db, query) and m == method)
+                # Counts with any ds still to do: their descriptors are computed again.
+                pending = tuple(sorted({k for (p, m, k, _) in todo
+                                        if p == (db, query) and m == method}))
                 if not pending:
                     continue
                 if data is None:
                     data = pair_data(route, split, db, query, cfg.split.database)
                 for cell in METHODS[method](data, pending, cfg, ctx):
-                    # A run left by a crash before its row was written is redone.
-                    shutil.rmtree(out / run_name(pair, method, cell.removed_pcs), True)
-                    row = finish_cell(out, cfg, data, cell)
-                    append_results(out / "results.csv", [row])
-                    finished += 1
-                    bar.advance()
-                    log_cell(log, f"[{finished}/{len(cells)}]", row, cell)
+                    for ds in lengths:
+                        if ((db, query), method, cell.removed_pcs, ds) not in todo:
+                            continue
+                        matched = with_sequence(cell, data, ds, cfg)
+                        cell = cell._replace(warning=None)  # said once per descriptor set
+                        # A run left by a crash before its row was written is redone.
+                        shutil.rmtree(out / run_name(pair, method, cell.removed_pcs, ds), True)
+                        row = finish_cell(out, cfg, data, matched, ds)
+                        append_results(out / "results.csv", [row])
+                        finished += 1
+                        bar.advance()
+                        log_cell(log, f"[{finished}/{len(cells)}]", row, matched)
     write_summaries(out)
     log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
         f"view with: tensorboard --logdir {logdir}")

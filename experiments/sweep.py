@@ -1,4 +1,5 @@
-"""The sweep runner: season pairs x methods x removed-PC counts into TensorBoard and tables.
+"""The sweep runner: season pairs x methods x removed-PC counts (x sequence lengths) into
+TensorBoard and tables.
 
     python -m experiments.sweep                       # default preset=quick, all pairs
     python -m experiments.sweep season_pairs=summer-fall,spring-fall removed_pcs=[0,50]
@@ -28,6 +29,7 @@ from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig, identity, parse_conf
 from vpr_jax.data import SEASON_ORDER, load_route
 from vpr_jax.data.splits import make_split
 from vpr_jax.errors import UserError
+from vpr_jax.preprocess import preprocess_route
 from vpr_jax.results import read_results
 
 
@@ -152,6 +154,8 @@ def run_sweep(cfg: SweepConfig) -> Path:
     pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
     prepare_logdir(logdir, cfg)
     route = load_route(cfg.data, cfg.seed, log)
+    route = preprocess_route(route, cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded,
+                             log)  # fmt: skip
     split = make_split(route.frame_ids, cfg.split)
     check_removed_pcs(cfg, 2 * len(split.train), int(route.images[pairs[0][0]][0].size))
 

@@ -158,6 +158,12 @@ CONFIG_CASES = {
     ),
     "ICs not a count": (["ica.n_components=many"], ["ica.n_components=many", "all"]),
     "unknown ICA contrast": (["ica.fun=tanh"], ["ica.fun=tanh", "logcosh"]),
+    "sequence of no image": (["sequence.ds=[0,10]"], ["sequence.ds=[0, 10]", "ds=1"]),
+    "velocities backwards": (["sequence.v_min=1.2", "sequence.v_max=0.8"],
+                             ["v_min=1.2", "v_max=0.8"]),
+    "patch that does not tile": (["preprocess=patchnorm", "patchnorm.size=5"],
+                                 ["patchnorm.size=5", "2, 4, 8, 16, 32"]),
+    "unknown preprocessing": (["preprocess=clahe"], ["preprocess=clahe", "patchnorm"]),
 }
 
 

@@ -83,10 +83,12 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
             content["_hparams_/session_start_info"]).session_start_info
         assert info.hparams["season_pair"].string_value == row["season_pair"]
         assert info.hparams["removed_pcs"].number_value == row["removed_pcs"]
+        assert info.hparams["ds"].number_value == row["ds"] == 1
     root = _accumulator(logdir)
     experiment = plugin_data_pb2.HParamsPluginData.FromString(
         root.PluginTagToContent("hparams")["_hparams_/experiment"]).experiment
-    assert {h.name for h in experiment.hparam_infos} == {"season_pair", "method", "removed_pcs"}
+    assert {h.name for h in experiment.hparam_infos} == {"season_pair", "method", "removed_pcs",
+                                                         "ds"}
     assert "metrics/recall_at_1" in {m.name.tag for m in experiment.metric_infos}
 
 

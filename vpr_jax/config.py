@@ -25,6 +25,7 @@ METHODS = ("raw", "pca", "ica", "fae", "cae")
 SWEEPS_REMOVED_PCS = frozenset({"pca", "ica"})
 ICA_FUNS = ("logcosh", "exp", "cube")
 OPTIMIZERS = ("adam", "adamw", "sgd")
+PREPROCESSES = ("none", "patchnorm")
 
 
 def _check(ok: bool, message: str) -> None:
@@ -248,6 +249,56 @@ class MeshConfig:
 
 
 @dataclass(frozen=True)
+class PatchNormConfig:
+    """``preprocess=patchnorm``: each image's non-overlapping size x size patches are
+    z-scored (openSeqSLAM's patch normalisation), then mapped into [0, 1] (see
+    ``vpr_jax.preprocess``), for every method's training, database and query images."""
+
+    size: int = 8  # patch side in pixels; must divide the 32x64 images
+    rounded: bool = False  # openSeqSLAM's integer variant: grey level 127 + round(z)
+
+    def __post_init__(self):
+        from vpr_jax.data.route import IMAGE_SHAPE  # here: vpr_jax.data imports this module
+
+        h, w = IMAGE_SHAPE
+        sizes = [s for s in range(2, h + 1) if h % s == 0 and w % s == 0]
+        _check(self.size in sizes, f"patchnorm.size={self.size} does not tile the {h}x{w} "
+               f"images: use one of {', '.join(map(str, sizes))}")
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """Sequence matching (``vpr_jax.sequence``, SeqSLAM) on top of every method's
+    descriptors; ``ds`` is a sweep axis, ds = 1 being single-image matching."""
+
+    enabled: bool = False
+    ds: list[int] = field(default_factory=lambda: [1, 10])  # sequence lengths in frames
+    contrast_window: int = 10  # R: database frames per local contrast window; 0: none
+    v_min: float = 0.8  # trajectory velocities: database frames per query frame
+    v_max: float = 1.2
+    v_step: float = 0.1
+    uniqueness_window: int = 10  # the runner-up is the best match beyond +-window/2 frames
+
+    def __post_init__(self):
+        _as_tuple(self, "ds")
+        _check(len(self.ds) > 0, "sequence.ds is empty: e.g. sequence.ds=[1,10]")
+        _check(min(self.ds) >= 1, f"sequence.ds={list(self.ds)} has lengths below 1: a "
+               "sequence holds at least one image (ds=1 is single-image matching)")
+        object.__setattr__(self, "ds", tuple(sorted(set(self.ds))))
+        _check(self.contrast_window >= 0, f"sequence.contrast_window={self.contrast_window} "
+               "must be >= 0 (0: no contrast enhancement)")
+        _check(self.uniqueness_window >= 0,
+               f"sequence.uniqueness_window={self.uniqueness_window} must be >= 0")
+        _check(0 < self.v_min <= self.v_max and self.v_step > 0,
+               f"sequence velocities v_min={self.v_min}, v_max={self.v_max}, "
+               f"v_step={self.v_step} need 0 < v_min <= v_max and v_step > 0, e.g. 0.8, "
+               "1.2, 0.1")
+        n = (self.v_max - self.v_min) / self.v_step + 1
+        _check(n <= 101, f"sequence velocities from {self.v_min} to {self.v_max} in steps "
+               f"of {self.v_step} are {int(n)} trajectories per frame: use a larger v_step")
+
+
+@dataclass(frozen=True)
 class TensorBoardConfig:
     n_match_examples: int = 6  # query | best match | true match rows per run
     n_basis_images: int = 8  # removed PCs / independent components shown as 32x64 images
@@ -267,6 +318,7 @@ class SweepConfig:
     removed_pcs: list[int] = field(default_factory=lambda: [0, 5, 10, 20, 50, 100])
     tolerance: int = 2  # a match is correct when |query frame - db frame| <= tolerance
     pr_convention: str = "vpr_bench"  # vpr_bench | has_match | vpr_tutorial: PR recall
+    preprocess: str = "none"  # none | patchnorm: applied to every image before any method
     seed: int = 0  # synthetic route and every random initialisation
     logdir: str | None = None  # default runs/<preset>
     data: DataConfig = field(default_factory=DataConfig)
@@ -277,6 +329,8 @@ class SweepConfig:
     cae: CAEConfig = field(default_factory=CAEConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
+    patchnorm: PatchNormConfig = field(default_factory=PatchNormConfig)
+    sequence: SequenceConfig = field(default_factory=SequenceConfig)
     mesh: MeshConfig = field(default_factory=MeshConfig)
     tb: TensorBoardConfig = field(default_factory=TensorBoardConfig)
 
@@ -297,6 +351,13 @@ class SweepConfig:
         _check(self.tolerance >= 0, f"tolerance={self.tolerance} must be >= 0")
         _check(self.pr_convention in PR_CONVENTIONS, f"pr_convention={self.pr_convention} is "
                f"unknown: use one of {', '.join(PR_CONVENTIONS)}")
+        _check(self.preprocess in PREPROCESSES, f"preprocess={self.preprocess} is unknown: use "
+               f"one of {', '.join(PREPROCESSES)}")
+
+    @property
+    def sequence_lengths(self) -> tuple[int, ...]:
+        """The ds axis of the sweep: (1,) unless sequence matching is enabled."""
+        return self.sequence.ds if self.sequence.enabled else (1,)
 
 
 # Keys that may differ between runs sharing a logdir: they add cells or change presentation,
@@ -305,7 +366,8 @@ class SweepConfig:
 EXTENDABLE_KEYS = ("preset", "season_pairs", "methods", "removed_pcs", "logdir", "tb",
                    "matching", "mesh")
 
-_LIST_KEYS = ("methods", "removed_pcs", "data.seasons", "cae.channels", "cae.kernel_sizes")
+_LIST_KEYS = ("methods", "removed_pcs", "data.seasons", "cae.channels", "cae.kernel_sizes",
+              "sequence.ds")
 
 
 def _normalise_cli(argv: list[str]) -> list[str]:
@@ -361,6 +423,8 @@ def _plain(value: Any) -> Any:
 
 # train.* keys that say where and how often models are saved, not what is trained.
 TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
+# sequence.* keys that add cells (the ds axis), like removed_pcs; its other keys change them.
+SEQUENCE_AXIS = ("enabled", "ds")
 
 
 def identity(cfg: SweepConfig | dict) -> dict:
@@ -371,4 +435,6 @@ def identity(cfg: SweepConfig | dict) -> dict:
     out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
     for key in TRAIN_BOOKKEEPING:
         out.get("train", {}).pop(key, None)
+    for key in SEQUENCE_AXIS:
+        out.get("sequence", {}).pop(key, None)
     return out

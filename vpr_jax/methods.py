@@ -26,6 +26,7 @@ from vpr_jax.encoders import ica, pca
 from vpr_jax.encoders.train import TrainingLog, fit_autoencoder, split_validation
 from vpr_jax.errors import UserError
 from vpr_jax.matching import degenerate_rows, top_k_matches
+from vpr_jax.sequence import sequence_top_k_cosine, velocities
 
 TOP_K = 10  # enough for recall@10
 
@@ -41,6 +42,13 @@ class PairData(NamedTuple):
     fits: dict  # fits shared by the methods of this pair (the PCA fit), filled on first use
 
 
+class Encoded(NamedTuple):
+    db: jax.Array  # (n_db, d) descriptors
+    query: jax.Array  # (n_queries, d)
+    ms_per_image: float  # warm (compiled) encoding time
+    warning: str | None  # descriptors that make matching arbitrary, if any
+
+
 class CellOutput(NamedTuple):
     method: str
     removed_pcs: int
@@ -53,6 +61,8 @@ class CellOutput(NamedTuple):
     n_iter: int = 0  # iterations of an iterative fit (0: closed form)
     converged: bool = True  # False when an iterative fit stopped at its iteration limit
     warning: str | None = None  # one line for the run log (non-convergence, degenerate)
+    encoded: Encoded | None = None  # the descriptors matched: sequence matching reuses them
+    feature_start: int = 0  # cosine on descriptor features [feature_start:] (PCA removal)
 
 
 class MethodContext(NamedTuple):
@@ -68,13 +78,6 @@ def _timed(fn: Callable, *args):
     start = time.perf_counter()
     out = jax.block_until_ready(fn(*args))
     return out, time.perf_counter() - start
-
-
-class Encoded(NamedTuple):
-    db: jax.Array  # (n_db, d) descriptors
-    query: jax.Array  # (n_queries, d)
-    ms_per_image: float  # warm (compiled) encoding time
-    warning: str | None  # descriptors that make matching arbitrary, if any
 
 
 def _encode(encode: Callable, pair: PairData) -> Encoded:
@@ -147,7 +150,7 @@ def run_raw(
     enc = _encode(lambda x: _centred(x, mean), pair)
     scores, idx = _match(enc.query, enc.db, cfg, ctx)
     return [CellOutput("raw", 0, scores[0], idx[0], fit_s, enc.ms_per_image, None,
-                       warning=enc.warning)]
+                       warning=enc.warning, encoded=enc)]
 
 
 def run_pca(
@@ -172,7 +175,8 @@ def run_pca(
     components = _images(state.components[: cfg.tb.n_basis_images], pair)
     return [
         CellOutput("pca", k, s, i, fit_s, enc.ms_per_image, components[:k] if k else None,
-                   warning=enc.warning)
+                   warning=enc.warning, encoded=enc,
+                   feature_start=0 if cfg.pca.output == "pixels" else k)
         for k, s, i, enc in outputs
     ]
 
@@ -220,7 +224,7 @@ def run_ica(
         yield CellOutput(
             "ica", k, scores[0], idx[0], pca_s + ica_s, enc.ms_per_image, basis,
             basis_name="independent_components", n_iter=n_iter, converged=converged,
-            warning=_join(warning, enc.warning),
+            warning=_join(warning, enc.warning), encoded=enc,
         )  # fmt: skip
 
 
@@ -280,7 +284,7 @@ def run_autoencoder(
         CellOutput(
             method, 0, scores[0], idx[0], result.train_seconds, enc.ms_per_image, basis,
             basis_name="hidden_units", n_iter=result.epochs, converged=result.stopped_early,
-            warning=enc.warning,
+            warning=enc.warning, encoded=enc,
         )  # fmt: skip
     ]
 
@@ -293,6 +297,22 @@ def run_fae(pair, removed_pcs, cfg, ctx) -> list[CellOutput]:
 def run_cae(pair, removed_pcs, cfg, ctx) -> list[CellOutput]:
     del removed_pcs
     return run_autoencoder("cae", pair, cfg, ctx)
+
+
+def with_sequence(out: CellOutput, pair: PairData, ds: int, cfg: SweepConfig) -> CellOutput:
+    """The same cell matched by sequences of ``ds`` frames (``vpr_jax.sequence``) on its
+    descriptors; ds = 1 is the cell as it is."""
+    if ds == 1:
+        return out
+    seq = cfg.sequence
+    start = out.feature_start
+    scores, idx = sequence_top_k_cosine(
+        out.encoded.query[:, start:], out.encoded.db[:, start:], ds,
+        query_ids=pair.query_ids, db_ids=pair.db_ids,
+        vels=velocities(seq.v_min, seq.v_max, seq.v_step),
+        contrast_window=seq.contrast_window, uniqueness_window=seq.uniqueness_window, k=TOP_K,
+    )
+    return out._replace(top_scores=scores, top_indices=idx)
 
 
 # A method maps (pair, removed-PC counts, config) to its cells, in any order, as they finish.

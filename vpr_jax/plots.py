@@ -1,6 +1,7 @@
 """Sweep figures, like the seed's Figs 7-12: PR curves per pair and fractions of correct
-matches. Built from results.csv rows and each cell's saved curve, so a resumed sweep draws
-every cell, not only those it computed this time."""
+matches (at the sweep's shortest sequence length, single images unless told otherwise), and
+recall@1 against the sequence length ds. Built from results.csv rows and each cell's saved
+curve, so a resumed sweep draws every cell, not only those it computed this time."""
 
 from __future__ import annotations
 
@@ -21,9 +22,14 @@ def _label(row: dict) -> str:
         else row["method"]
 
 
+def _shortest_sequences(rows: list[dict]) -> list[dict]:
+    shortest = min(r["ds"] for r in rows)
+    return [r for r in rows if r["ds"] == shortest]
+
+
 def pr_curves_figure(rows: list[dict], load_curve: Callable[[dict], tuple], path: Path):
     """One panel per season pair, one line per method (PCA at its best removed-PC count)."""
-    best = best_rows(rows)
+    best = best_rows(_shortest_sequences(rows))
     pairs = list(dict.fromkeys(r["season_pair"] for r in rows))  # sweep order
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
@@ -41,7 +47,7 @@ def pr_curves_figure(rows: list[dict], load_curve: Callable[[dict], tuple], path
 
 def correct_matches_figure(rows: list[dict], path: Path):
     """Grouped bars: fraction of correct matches (recall@1) per pair and method."""
-    best = best_rows(rows)
+    best = best_rows(_shortest_sequences(rows))
     pairs = list(dict.fromkeys(r["season_pair"] for r in rows))  # sweep order
     methods = list(dict.fromkeys(r["method"] for r in rows))
     width = 0.8 / len(methods)
@@ -55,6 +61,28 @@ def correct_matches_figure(rows: list[dict], path: Path):
     ax.set_xticks(np.arange(len(pairs)), pairs)
     ax.set(ylabel="fraction of correct matches", ylim=(0, 1.08))
     ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def recall_vs_ds_figure(rows: list[dict], path: Path):
+    """One panel per season pair: recall@1 against the sequence length ds, a line per method
+    (PCA and ICA at their best removed-PC count for each ds, as in results.md)."""
+    best = best_rows(rows)
+    pairs = list(dict.fromkeys(r["season_pair"] for r in rows))  # sweep order
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
+    for ax, pair in zip(axes[0], pairs, strict=True):
+        for method in methods:
+            points = sorted((r["ds"], r["recall_at_1"]) for r in best
+                            if r["season_pair"] == pair and r["method"] == method)
+            if points:
+                ax.plot(*zip(*points, strict=True), marker="o", label=method)
+        ax.set(title=pair, xlabel="sequence length ds (frames)", ylabel="recall@1",
+               ylim=(0, 1.02), xticks=sorted({r["ds"] for r in rows}))
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -9,12 +9,15 @@ import tempfile
 from pathlib import Path
 
 COLUMNS = (
-    "season_pair", "db_season", "query_season", "method", "removed_pcs", "n_train", "n_test",
-    "tolerance", "recall_at_1", "precision_at_full_recall", "auc_pr",
+    "season_pair", "db_season", "query_season", "method", "removed_pcs", "ds", "n_train",
+    "n_test", "tolerance", "recall_at_1", "precision_at_full_recall", "auc_pr",
     "recall_at_100_precision", "recall_at_5", "recall_at_10", "fit_seconds",
     "encode_ms_per_image", "n_iter", "converged", "seed", "run",
 )
-INT_COLUMNS = {"removed_pcs", "n_train", "n_test", "tolerance", "n_iter", "converged", "seed"}
+INT_COLUMNS = {"removed_pcs", "ds", "n_train", "n_test", "tolerance", "n_iter", "converged",
+               "seed"}
+# Columns added since the first tables were written, with the value those tables meant.
+ADDED_COLUMNS = {"ds": "1"}  # sequence length: 1 is single-image matching
 TEXT_COLUMNS = {"season_pair", "db_season", "query_season", "method", "run"}
 
 
@@ -33,14 +36,14 @@ def atomic_write_text(path: Path, text: str) -> None:
         raise
 
 
-def cell_key(row: dict) -> tuple[str, str, int]:
-    return row["season_pair"], row["method"], int(row["removed_pcs"])
+def cell_key(row: dict) -> tuple[str, str, int, int]:
+    return row["season_pair"], row["method"], int(row["removed_pcs"]), int(row["ds"])
 
 
 def _parse(row: dict) -> dict:
     out = {}
     for col in COLUMNS:
-        value = row[col]
+        value = row[col] if col in row else ADDED_COLUMNS[col]
         out[col] = value if col in TEXT_COLUMNS else int(value) if col in INT_COLUMNS \
             else float(value)
     return out
@@ -57,7 +60,7 @@ def read_results(path: Path) -> list[dict]:
     with open(path, newline="") as f:
         try:
             reader = csv.DictReader(f)
-            missing = set(COLUMNS) - set(reader.fieldnames or ())
+            missing = set(COLUMNS) - set(ADDED_COLUMNS) - set(reader.fieldnames or ())
             if missing:
                 raise ValueError(f"lacks columns {', '.join(sorted(missing))}")
             rows = []
@@ -83,24 +86,27 @@ def append_results(path: Path, new_rows: list[dict]) -> list[dict]:
 
 
 def best_rows(rows: list[dict], metric: str = "recall_at_1") -> list[dict]:
-    """Per (pair, method), the row with the best metric (smallest removed_pcs on ties)."""
-    best: dict[tuple[str, str], dict] = {}
+    """Per (pair, method, ds), the row with the best metric (smallest removed_pcs on ties)."""
+    best: dict[tuple[str, str, int], dict] = {}
     for row in sorted(rows, key=lambda r: r["removed_pcs"]):
-        key = (row["season_pair"], row["method"])
+        key = (row["season_pair"], row["method"], row["ds"])
         if key not in best or row[metric] > best[key][metric]:
             best[key] = row
     return list(best.values())
 
 
 def markdown_table(rows: list[dict]) -> str:
-    """results.md: the best removed-PC count per method, then every cell."""
-    cols = ("season_pair", "method", "removed_pcs", "recall_at_1", "auc_pr",
-            "recall_at_100_precision", "recall_at_5", "recall_at_10", "fit_seconds",
-            "encode_ms_per_image")
+    """results.md: the best removed-PC count per method (and sequence length), then every
+    cell. The ds column appears once a sweep holds sequence-matching cells."""
+    sequences = any(r["ds"] != 1 for r in rows)
+    cols = ("season_pair", "method", "removed_pcs", *(("ds",) if sequences else ()),
+            "recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_5", "recall_at_10",
+            "fit_seconds", "encode_ms_per_image")
 
     def table(rs: list[dict]) -> list[str]:
         lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-        for r in sorted(rs, key=lambda r: (r["season_pair"], r["method"], r["removed_pcs"])):
+        for r in sorted(rs, key=lambda r: (r["season_pair"], r["method"], r["removed_pcs"],
+                                           r["ds"])):
             cells = [f"{r[c]:.3f}" if isinstance(r[c], float) else str(r[c]) for c in cols]
             lines.append("| " + " | ".join(cells) + " |")
         return lines
