@@ -110,7 +110,8 @@ def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):
 
 
 def test_sigterm_stops_like_ctrl_c(tmp_path):
-    args = [*KILLABLE, f"logdir={tmp_path / 'runs'}"]
+    args = [*KILLABLE, f"logdir={tmp_path / 'runs'}",
+            f"train.checkpoint_dir={tmp_path / 'checkpoints'}"]
     code, printed, err = _signal_during("summer-fall fae epoch 2/6", args, signal.SIGTERM)
     assert code == 128 + signal.SIGTERM, (printed[-2000:], err)
     (line,) = err.strip().splitlines()
