@@ -25,7 +25,14 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 # Only light modules here (no JAX): bad input is answered before JAX, Flax and orbax load.
-from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig, identity, parse_config
+from vpr_jax.config import (
+    SWEEPS_REMOVED_PCS,
+    SequenceConfig,
+    SweepConfig,
+    identity,
+    parse_config,
+    with_old_defaults,
+)
 from vpr_jax.data import SEASON_ORDER, load_route
 from vpr_jax.data.splits import make_split
 from vpr_jax.errors import UserError
@@ -82,7 +89,8 @@ def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
 
 def saved_identity(path: Path) -> dict:
     """The identity of a logdir's config.yaml; keys added to the suite since it was written
-    take their defaults (which reproduce what the suite did before they existed)."""
+    take their defaults, which reproduce what the suite did before they existed, or where a
+    new default changed the numbers, the value the old runs used (CHANGED_DEFAULTS)."""
     try:
         saved = OmegaConf.load(path)
     except (OSError, yaml.YAMLError, OmegaConfBaseException) as err:
@@ -90,11 +98,12 @@ def saved_identity(path: Path) -> dict:
     if not isinstance(saved, DictConfig):
         raise UserError(f"{path} is not a sweep config ({type(saved).__name__}), so the logdir "
                         "cannot be resumed safely: use a new logdir=PATH") from None
+    saved = with_old_defaults(OmegaConf.to_container(saved))
     try:
-        saved = OmegaConf.merge(OmegaConf.structured(SweepConfig), saved)
+        saved = OmegaConf.to_container(OmegaConf.merge(OmegaConf.structured(SweepConfig), saved))
     except OmegaConfBaseException:
         pass  # keys this version does not know: compared as they are, and so they differ
-    return identity(OmegaConf.to_container(saved))
+    return identity(saved)
 
 
 def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
@@ -153,6 +162,9 @@ def run_sweep(cfg: SweepConfig) -> Path:
     logdir = Path(cfg.logdir).expanduser().resolve()
     pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
     prepare_logdir(logdir, cfg)
+    if not cfg.sequence.enabled and cfg.sequence.ds != SequenceConfig().ds:
+        log(f"note: sequence.ds={list(cfg.sequence.ds)} is ignored while sequence.enabled="
+            "false: single images only (add sequence.enabled=true for the ds axis)")
     route = load_route(cfg.data, cfg.seed, log)
     route = preprocess_route(route, cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded,
                              log)  # fmt: skip

@@ -111,3 +111,12 @@ def test_a_results_table_written_before_the_ds_column_reads_as_single_images(
         writer.writeheader()
         writer.writerows(r for r in reader if r["ds"] == "1")
     assert read_results(old) == [r for r in rows if r["ds"] == 1]
+
+
+def test_sequence_lengths_without_enabling_them_are_pointed_out(tmp_path):
+    """A ds list while sequence matching is off would be silently single images: the run
+    log says so (here, before the missing data folder stops the run)."""
+    proc = run_cli("data.source=nordland_images", f"data.root={tmp_path / 'absent'}",
+                   "sequence.ds=[1,5]", f"logdir={tmp_path / 'runs'}")
+    assert proc.returncode == 2
+    assert "sequence.ds=[1, 5] is ignored while sequence.enabled=false" in proc.stdout
