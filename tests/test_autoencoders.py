@@ -47,11 +47,12 @@ def test_default_sizes_follow_the_seed_and_calc():
     assert ae.make_encode(graphdef)(params, _images(1)).shape == (1, 1024)  # about 1k values
 
 
-def test_fae_code_is_relu_of_the_first_layer():
-    graphdef, params = ae.build(ae.FAESpec(hidden=16), jax.random.key(1))
+@pytest.mark.parametrize("centre", [0.5, 0.0])  # ours; the seed's plain layer
+def test_fae_code_is_relu_of_the_first_layer_on_centred_pixels(centre):
+    graphdef, params = ae.build(ae.FAESpec(hidden=16, centre=centre), jax.random.key(1))
     x = _images(3)
     w, b = np.asarray(params["encoder"]["kernel"]), np.asarray(params["encoder"]["bias"])
-    expected = np.maximum(np.asarray(x).reshape(3, -1) @ w + b, 0.0)
+    expected = np.maximum((np.asarray(x).reshape(3, -1) - centre) @ w + b, 0.0)
     np.testing.assert_allclose(ae.make_encode(graphdef)(params, x), expected, rtol=1e-5, atol=1e-6)
 
 

@@ -98,3 +98,19 @@ def test_full_preset_is_the_whole_route_with_olid_sections():
     assert cfg.data.n_frames == 35768 and cfg.data.frame_step == 1
     assert (cfg.split.test_sections, cfg.split.n_test, cfg.split.gap) == (3, 1150, 200)
     assert cfg.split.database == "all"
+
+
+def test_a_saved_config_from_before_a_changed_default_keeps_its_old_value(tmp_path):
+    """fae.input_centre arrived with default 0.5, but FAE rows of an older logdir were
+    computed with 0: resuming such a logdir must see a different configuration."""
+    from omegaconf import OmegaConf
+
+    from experiments.sweep import saved_identity
+    from vpr_jax.config import to_dict
+
+    saved = to_dict(parse_config([]))
+    del saved["fae"]["input_centre"]
+    path = tmp_path / "config.yaml"
+    path.write_text(OmegaConf.to_yaml(saved))
+    assert saved_identity(path) != identity(parse_config([]))
+    assert saved_identity(path) == identity(parse_config(["fae.input_centre=0"]))

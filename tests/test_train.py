@@ -1,5 +1,7 @@
 """Auto-encoder training: loss falls, checkpoints round-trip, interrupted runs resume exactly."""
 
+import json
+
 import jax
 import numpy as np
 import pytest
@@ -174,3 +176,25 @@ def test_a_checkpoint_of_other_data_or_settings_is_refused(data, tmp_path):
     with pytest.raises(UserError, match="other data or settings"):
         fit_autoencoder(ae.FAESpec(hidden=8), train, val, jax.random.key(4), one,
                         checkpoint_dir=folder, identity={"seed": 4})  # fmt: skip
+
+
+def test_an_fae_saved_before_input_centring_loads_as_it_was_trained(data, tmp_path):
+    """FAE checkpoints written before the FAE centred its input carry no ``centre`` in their
+    spec: load_encoder must encode them with the seed's plain layer, and training must not
+    resume them as a centred model."""
+    train, val = data
+    one = TrainConfig(epochs=1, batch_size=32)
+    folder = tmp_path / "old_fae"
+    fit_autoencoder(ae.FAESpec(hidden=16, centre=0.0), train, val, jax.random.key(4), one,
+                    checkpoint_dir=folder)  # fmt: skip
+    for meta_file in folder.glob("*/meta/metadata"):  # as an older version wrote it
+        meta = json.loads(meta_file.read_text())
+        del meta["spec"]["centre"]
+        meta_file.write_text(json.dumps(meta))
+    encode, params = load_encoder(folder)
+    w, b = np.asarray(params["encoder"]["kernel"]), np.asarray(params["encoder"]["bias"])
+    expected = np.maximum(val.reshape(len(val), -1) @ w + b, 0.0)
+    np.testing.assert_allclose(encode(params, val), expected, rtol=1e-4, atol=1e-5)
+    with pytest.raises(UserError, match="other data or settings"):
+        fit_autoencoder(ae.FAESpec(hidden=16), train, val, jax.random.key(4), one,
+                        checkpoint_dir=folder)  # fmt: skip

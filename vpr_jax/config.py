@@ -149,9 +149,14 @@ class FAEConfig:
 
     hidden: int = 256  # code length: the place descriptor
     epochs: int | None = None  # overrides train.epochs for the FAE (it trains ~100x faster)
+    # Subtracted from every pixel before the hidden layer; 0 is the seed's layer, on which
+    # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
+    input_centre: float = 0.5
 
     def __post_init__(self):
         _check(self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1")
+        _check(0 <= self.input_centre <= 1, f"fae.input_centre={self.input_centre} is not a "
+               "grey level in [0, 1]: use 0.5 (mid-grey) or 0 (the seed's layer)")
         _check(self.epochs is None or self.epochs >= 1, f"fae.epochs={self.epochs} must be >= 1")
 
 
@@ -425,6 +430,18 @@ def _plain(value: Any) -> Any:
 TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
 # sequence.* keys that add cells (the ds axis), like removed_pcs; its other keys change them.
 SEQUENCE_AXIS = ("enabled", "ds")
+# Keys added with a default that changed what the suite computes: a saved config without
+# them was computed with the value here (other new keys' defaults reproduce the old runs).
+CHANGED_DEFAULTS = {("fae", "input_centre"): 0.0}
+
+
+def with_old_defaults(saved: dict) -> dict:
+    """A saved config (plain data) with every key of ``CHANGED_DEFAULTS`` it lacks set to
+    the value its runs used."""
+    for (group, key), value in CHANGED_DEFAULTS.items():
+        if isinstance(saved.get(group), dict):
+            saved[group].setdefault(key, value)
+    return saved
 
 
 def identity(cfg: SweepConfig | dict) -> dict:

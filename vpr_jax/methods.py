@@ -230,7 +230,7 @@ def run_ica(
 
 def autoencoder_spec(method: str, cfg: SweepConfig) -> ae.Spec:
     if method == "fae":
-        return ae.FAESpec(hidden=cfg.fae.hidden)
+        return ae.FAESpec(hidden=cfg.fae.hidden, centre=cfg.fae.input_centre)
     c = cfg.cae
     return ae.CAESpec(tuple(c.channels), tuple(c.kernel_sizes), c.code_channels)
 

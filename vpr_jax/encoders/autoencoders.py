@@ -7,7 +7,8 @@ graph definition and ``params``, a nested dict of arrays (``nnx.to_pure_dict``),
 two inside. Other JAX code can call it, ``vmap`` it, differentiate through it and jit it
 inside its own functions.
 
-- FAE: 2,048 pixels -> ``hidden`` units (ReLU) -> 2,048 (sigmoid, images lie in [0, 1]).
+- FAE: 2,048 pixels, centred at mid-grey -> ``hidden`` units (ReLU) -> 2,048 (sigmoid,
+  images lie in [0, 1]). See ``FAE`` for why the centring.
 - CAE on (32, 64, 1): per level a same-padded convolution (ReLU) and 2x2 max-pooling, then a
   3x3 convolution to ``code_channels``; the decoder mirrors it with nearest-neighbour
   up-sampling (the seed's "up-pooling") and ends in a sigmoid. The default is sized like
@@ -41,6 +42,7 @@ IMAGE_SHAPE = (32, 64)
 
 class FAESpec(NamedTuple):
     hidden: int = 256  # code length
+    centre: float = 0.5  # subtracted from every pixel before the hidden layer (0: the seed's)
 
 
 class CAESpec(NamedTuple):
@@ -50,12 +52,24 @@ class CAESpec(NamedTuple):
 
 
 class FAE(nnx.Module):
+    """code = relu((x - centre) W + b); reconstruction = sigmoid(code W' + b').
+
+    The seed's layer is centre = 0. Then each unit's pre-activation carries 0.5 x the sum of
+    its weights, nearly the same for every image: about half the ReLU units start dead and
+    training kills most of the rest (28 of 256 fire on summer-fall's test images of the
+    built-in route, recall@1 0.42); on patch-normalised images, whose patches all have the
+    same mean, every unit dies. Subtracting mid-grey keeps them alive (167 fire, recall@1
+    0.60; all 256 on patch-normalised images), which starting the bias at -0.5 x the weight
+    sums does not: the weights' gradients need the centred input too.
+    """
+
     def __init__(self, spec: FAESpec, n_pixels: int, *, rngs: nnx.Rngs):
+        self.centre = float(spec.centre)
         self.encoder = nnx.Linear(n_pixels, spec.hidden, rngs=rngs)
         self.decoder = nnx.Linear(spec.hidden, n_pixels, rngs=rngs)
 
     def encode(self, images: Float[Array, "n h w"]) -> Float[Array, "n code"]:
-        return nnx.relu(self.encoder(images.reshape(images.shape[0], -1)))
+        return nnx.relu(self.encoder(images.reshape(images.shape[0], -1) - self.centre))
 
     def __call__(self, images: Float[Array, "n h w"]) -> Float[Array, "n h w"]:
         return nnx.sigmoid(self.decoder(self.encode(images))).reshape(images.shape)

@@ -313,6 +313,7 @@ def load_encoder(checkpoint_dir: str | Path):
     fields = dict(meta["spec"])
     kind = fields.pop("kind")
     if kind == "FAESpec":
+        fields.setdefault("centre", 0.0)  # written before the FAE centred its input
         spec = ae.FAESpec(**fields)
     elif kind == "CAESpec":
         spec = ae.CAESpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
