@@ -42,8 +42,9 @@ def test_sequences_recover_a_planted_diagonal_that_single_images_miss():
     assert hit_rate(sequence_top_k(sim, 10)[1], truth) >= 0.97
 
 
-def test_the_velocity_search_follows_a_faster_train():
-    """The query season's train is 20% faster: only trajectories of that slope find it."""
+def test_the_velocity_search_follows_a_train_recorded_at_another_speed():
+    """The query season's train covers 1.2 database frames per query frame: only
+    trajectories of that slope find it."""
     sim, truth = planted_route(speed=1.2, band=1.5)
     searched = hit_rate(sequence_top_k(sim, 20, vels=velocities(0.8, 1.2, 0.1))[1], truth)
     straight = hit_rate(sequence_top_k(sim, 20, vels=(1.0,))[1], truth)
