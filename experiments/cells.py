@@ -109,7 +109,7 @@ def run_name(pair: str, method: str, k: int, ds: int = 1) -> str:
 
 
 def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput,
-                ds: int = 1) -> dict:
+                ds: int) -> dict:
     """Evaluate one cell and write its TensorBoard run; returns its results.csv row."""
     pair = f"{data.db_season}-{data.query_season}"
     ev = evaluate_top_k(out.top_scores, out.top_indices, data.query_ids, data.db_ids,
@@ -152,7 +152,20 @@ def finish_cell(logdir: Path, cfg: SweepConfig, data: PairData, out: CellOutput,
     }
 
 
-def log_cell(log: RunLog, counter: str, row: dict, out: CellOutput) -> None:
+def save_cell(out_dir: Path, cfg: SweepConfig, data: PairData, cell: CellOutput,
+              ds: int) -> dict:
+    """Match a method's cell by sequences of ``ds`` frames (1: as it is), evaluate it, and
+    write its TensorBoard run and results.csv row; returns the row."""
+    pair = f"{data.db_season}-{data.query_season}"
+    # A run left by a crash before its row was written is redone.
+    shutil.rmtree(out_dir / run_name(pair, cell.method, cell.removed_pcs, ds), True)
+    row = finish_cell(out_dir, cfg, data, with_sequence(cell, data, ds, cfg), ds)
+    append_results(out_dir / "results.csv", [row])
+    return row
+
+
+def log_cell(log: RunLog, counter: str, row: dict, out: CellOutput,
+             warning: str | None) -> None:
     k_text = f" k={out.removed_pcs}" if out.method in SWEEPS_REMOVED_PCS else ""
     k_text += f" ds={row['ds']}" if row["ds"] != 1 else ""
     iters = f"  {out.n_iter} iterations" if out.n_iter else ""
@@ -162,8 +175,8 @@ def log_cell(log: RunLog, counter: str, row: dict, out: CellOutput) -> None:
         f"R@100P {row['recall_at_100_precision']:.3f}  "
         f"fit {row['fit_seconds']:.2f} s{iters}  {row['encode_ms_per_image']:.4f} ms/img"
     )
-    if out.warning:
-        log(f"warning: {row['season_pair']} {out.method}{k_text}: {out.warning}")
+    if warning:
+        log(f"warning: {row['season_pair']} {out.method}{k_text}: {warning}")
 
 
 def write_summaries(logdir: Path) -> None:
@@ -247,18 +260,15 @@ def _cells(cfg: SweepConfig, log: RunLog, logdir: Path, out: Path, pairs, mesh: 
                 if data is None:
                     data = pair_data(route, split, db, query, cfg.split.database)
                 for cell in METHODS[method](data, pending, cfg, ctx):
-                    for ds in lengths:
-                        if ((db, query), method, cell.removed_pcs, ds) not in todo:
-                            continue
-                        matched = with_sequence(cell, data, ds, cfg)
-                        cell = cell._replace(warning=None)  # said once per descriptor set
-                        # A run left by a crash before its row was written is redone.
-                        shutil.rmtree(out / run_name(pair, method, cell.removed_pcs, ds), True)
-                        row = finish_cell(out, cfg, data, matched, ds)
-                        append_results(out / "results.csv", [row])
+                    left = [ds for ds in lengths
+                            if ((db, query), method, cell.removed_pcs, ds) in todo]
+                    for i, ds in enumerate(left):
+                        row = save_cell(out, cfg, data, cell, ds)
                         finished += 1
                         bar.advance()
-                        log_cell(log, f"[{finished}/{len(cells)}]", row, matched)
+                        # A warning about the descriptors goes with their first cell only.
+                        log_cell(log, f"[{finished}/{len(cells)}]", row, cell,
+                                 cell.warning if i == 0 else None)
     write_summaries(out)
     log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
         f"view with: tensorboard --logdir {logdir}")

@@ -1,14 +1,20 @@
 """A straightforward numpy sequence search, written the way openSeqSLAM writes it (a loop
 over queries, then over velocities and steps), from the definition in ``vpr_jax.sequence``'s
 docstring: the oracle of tests/test_sequence.py and the peer of benchmarks/bench_sequence.py.
-Shares only the definition of the trajectories' integer offsets with the code under test.
+Shares only the definition of the trajectories' steps and integer offsets with the code
+under test.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from vpr_jax.sequence import DEFAULT_VELOCITIES, stretch_ids, trajectory_offsets
+from vpr_jax.sequence import (
+    DEFAULT_VELOCITIES,
+    stretch_ids,
+    trajectory_offsets,
+    trajectory_steps,
+)
 
 
 def enhance(diff: np.ndarray, window: int) -> np.ndarray:
@@ -38,7 +44,7 @@ def sequence_top_k_numpy(similarity, ds=10, *, query_ids=None, db_ids=None,
     enhanced = enhance(1.0 - sim, contrast_window)
     q_stretch = stretch_ids(np.arange(nq) if query_ids is None else query_ids)
     d_stretch = stretch_ids(np.arange(n_db) if db_ids is None else db_ids)
-    steps = np.arange(-(ds // 2), ds - ds // 2)
+    steps = trajectory_steps(ds)
     offsets = trajectory_offsets(ds, tuple(vels))
     columns = np.arange(n_db)
     scores = np.zeros((nq, k))

@@ -93,15 +93,14 @@ def degenerate_warning(db, query) -> str | None:
     """One run-log line when descriptors cannot tell places apart (zero descriptors, or all
     pointing one way): cosine matching of them is arbitrary, so the cell's metrics mean
     nothing. None when the descriptors are fine."""
-    zero, parallel = {}, []
+    zero, parallel = [], []
     for name, desc in (("database", db), ("query", query)):
         n_zero, one_way = degenerate_rows(jax.numpy.reshape(desc, (len(desc), -1)))
-        zero[name] = f"{name} {int(n_zero):,} of {len(desc):,}"
+        if int(n_zero):
+            zero.append(f"{name} {int(n_zero):,} of {len(desc):,}")
         if bool(one_way):
             parallel.append(name)
-        if not int(n_zero):
-            del zero[name]
-    found = [f"zero descriptors ({', '.join(zero.values())})"] if zero else []
+    found = [f"zero descriptors ({', '.join(zero)})"] if zero else []
     if parallel:
         found.append(f"the nonzero {' and '.join(parallel)} descriptors all point one way")
     if not found:

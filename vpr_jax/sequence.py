@@ -122,15 +122,19 @@ def _search_block(sim_rows, row_stretch, db_stretch, *, ds, offsets, window, uni
     reach = max(abs(s) for vel in offsets for s in vel)
     padded = jnp.pad(enhanced, ((0, 0), (reach, reach)))
     stretch = jnp.pad(db_stretch, (reach, reach), constant_values=-1)
+    # Step j is usable for query t when row j + t is a query of t's own stretch; a database
+    # shift s when frame i + s is in frame i's stretch. Both are shared across velocities.
+    query_ok = [((row_stretch[j : j + b] == own) & (own >= 0))[:, None] for j in range(ds)]
+    db_ok = {s: (stretch[reach + s : reach + s + n_db] == db_stretch)[None, :]
+             for s in {s for vel in offsets for s in vel}}
     cost = None
     for vel in offsets:
         total = jnp.zeros((b, n_db), enhanced.dtype)
         for j, s in enumerate(vel):
-            query_ok = ((row_stretch[j : j + b] == own) & (own >= 0))[:, None]
-            db_ok = (stretch[reach + s : reach + s + n_db] == db_stretch)[None, :]
             step = padded[j : j + b, reach + s : reach + s + n_db]
             # A step past the database counts as the query row's average difference.
-            total = total + jnp.where(query_ok, jnp.where(db_ok, step, row_mean[j : j + b]), 0)
+            step = jnp.where(db_ok[s], step, row_mean[j : j + b])
+            total = total + jnp.where(query_ok[j], step, 0)
         cost = total if cost is None else jnp.minimum(cost, total)
     top, idx = _smallest_k(cost, k)
     far = jnp.abs(jnp.arange(n_db)[None, :] - idx[:, :1]) > unique // 2
