@@ -142,8 +142,8 @@ def protocol_row(table: Table, extra: list[str]) -> None:
         rows = read_results(logdir / "results.csv")
     by_method: dict[str, float] = {}
     for row in rows:  # PCA and ICA report one shared fit per count: count each pair once
-        seconds = row["fit_seconds"] if row["method"] in ("raw", "fae", "cae") else 0.0
-        by_method[row["method"]] = by_method.get(row["method"], 0.0) + seconds
+        seconds = row.fit_seconds if row.method in ("raw", "fae", "cae") else 0.0
+        by_method[row.method] = by_method.get(row.method, 0.0) + seconds
     label = "paper protocol" + (f" ({' '.join(extra)})" if extra else "")
     table.add(label, wall, PROTOCOL_GOAL_S, "goal: 10 min", 1.0)
     table.add("  the same vs the seed's Table 4", wall, SEED_TABLE_4_S, "seed, 14 h 50 min", 1.0)

@@ -1,10 +1,13 @@
 import os
 import subprocess
 import sys
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -44,3 +47,32 @@ def numpy_cosine(q, d):
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     return q @ d.T
+
+
+def write_release(root: Path, frames: Mapping[str, Iterable[np.ndarray]],
+                  ids: Iterable[int] | None = None) -> Path:
+    """Nordland's 64x32 release layout, ``ROOT/<season>/images-%05d.png``, from each season's
+    uint8 images, numbered ``ids`` (default 1, 2, ...). Returns ``root``."""
+    for season, images in frames.items():
+        folder = Path(root) / season
+        folder.mkdir(parents=True, exist_ok=True)
+        images = list(images)
+        numbers = range(1, len(images) + 1) if ids is None else ids
+        for i, img in zip(numbers, images, strict=True):
+            assert cv2.imwrite(str(folder / f"images-{i:05d}.png"), img)
+    return Path(root)
+
+
+class LogLines(list):
+    """Collects what a reader or loop logs: pass it where ``log=print`` would go."""
+
+    def __call__(self, line: str) -> None:
+        self.append(line)
+
+
+def read_run(path: Path) -> EventAccumulator:
+    """A TensorBoard run read back by TensorBoard's own reader, keeping every event (its
+    default keeps only a sample of each tag)."""
+    ea = EventAccumulator(str(path), size_guidance={"scalars": 0, "tensors": 0, "images": 0})
+    ea.Reload()
+    return ea

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from tests.conftest import SMALL, run_cli
+from tests.conftest import SMALL, run_cli, write_release
 from tests.test_nordland import write_video
 from vpr_jax.config import parse_config, to_dict
 
@@ -25,12 +25,8 @@ def _snapshot(folder: Path) -> dict:
 
 
 def _release(root: Path, seasons=("spring", "summer", "fall"), ids=range(1, 5), shape=(32, 64)):
-    for season in seasons:
-        (root / season).mkdir(parents=True, exist_ok=True)
-        for i in ids:
-            img = np.full(shape, 40 + i, np.uint8)
-            cv2.imwrite(str(root / season / f"images-{i:05d}.png"), img)
-    return root
+    return write_release(root, {s: [np.full(shape, 40 + i, np.uint8) for i in ids]
+                                for s in seasons}, ids)  # fmt: skip
 
 
 def _assert_refused(proc, *words):

@@ -1,11 +1,16 @@
 """Typed configs from key=value, and train/test splits that never leak."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
-from vpr_jax.config import SplitConfig, identity, parse_config
+from tests.conftest import REPO
+from vpr_jax.config import SplitConfig, parse_config
 from vpr_jax.data.splits import make_split
 from vpr_jax.errors import UserError
+from vpr_jax.logdir import identity
 
 
 def test_defaults_and_overrides():
@@ -105,8 +110,8 @@ def test_a_saved_config_from_before_a_changed_default_keeps_its_old_value(tmp_pa
     computed with 0: resuming such a logdir must see a different configuration."""
     from omegaconf import OmegaConf
 
-    from experiments.sweep import saved_identity
     from vpr_jax.config import to_dict
+    from vpr_jax.logdir import saved_identity
 
     saved = to_dict(parse_config([]))
     del saved["fae"]["input_centre"]
@@ -114,3 +119,24 @@ def test_a_saved_config_from_before_a_changed_default_keeps_its_old_value(tmp_pa
     path.write_text(OmegaConf.to_yaml(saved))
     assert saved_identity(path) != identity(parse_config([]))
     assert saved_identity(path) == identity(parse_config(["fae.input_centre=0"]))
+
+
+def test_the_config_names_what_the_library_registers():
+    """config.py loads without JAX, so it spells the names of methods, optimizers, ICA
+    contrasts and data sources itself; they must be the library's."""
+    from vpr_jax import config, methods
+    from vpr_jax.data import nordland
+    from vpr_jax.encoders import ica, train
+
+    assert config.METHODS == tuple(methods.METHODS)
+    assert config.OPTIMIZERS == tuple(train.OPTIMIZERS)
+    assert config.ICA_FUNS == ica.FUNS
+    assert config.SOURCES == ("synthetic", *nordland.SOURCES)
+
+
+def test_the_config_and_the_logdir_checks_load_without_jax():
+    code = ("import sys; import vpr_jax.config, vpr_jax.logdir, experiments.plan; "
+            "assert not [m for m in sys.modules if m == 'jax' or m.startswith('jax.')], "
+            "'jax was imported'")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr

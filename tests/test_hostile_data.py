@@ -9,13 +9,13 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import run_cli
+from tests.conftest import run_cli, write_release
 from vpr_jax.data.synthetic import synthetic_route
+from vpr_jax.metrics import SCALAR_NAMES
 from vpr_jax.results import read_results
 
 SEASONS = ("spring", "summer", "fall")
-METRICS = ("recall_at_1", "precision_at_full_recall", "auc_pr", "recall_at_100_precision",
-           "recall_at_5", "recall_at_10")
+METRICS = SCALAR_NAMES
 # Test places are positions 110..239 of the route: the tunnel, the station and the
 # over-exposed frames all fall among them.
 SPLIT = ["split.n_train=100", "split.gap=10", "split.n_test=130"]
@@ -30,11 +30,7 @@ def hostile_root(tmp_path_factory):
         images[season][150:156] = 0  # a tunnel: 6 black places in every season
     images["fall"][200:203] = 255  # the camera saturates for 3 frames
     images["spring"][170:180] = images["spring"][170]  # standing 9 more seconds at a station
-    root = tmp_path_factory.mktemp("hostile") / "data"
-    for season, frames in images.items():
-        (root / season).mkdir(parents=True)
-        for i, img in enumerate(frames, start=1):
-            cv2.imwrite(str(root / season / f"images-{i:05d}.png"), img)
+    root = write_release(tmp_path_factory.mktemp("hostile") / "data", images)
     colour = cv2.cvtColor(images["summer"][9], cv2.COLOR_GRAY2BGR)
     cv2.imwrite(str(root / "summer" / "images-00010.png"), colour)
     return root
@@ -51,7 +47,8 @@ def _run(root, logdir, *args):
 def _assert_finite(rows):
     for row in rows:
         for key in METRICS:
-            assert math.isfinite(row[key]) and 0.0 <= row[key] <= 1.0, (row["run"], key)
+            value = getattr(row, key)
+            assert math.isfinite(value) and 0.0 <= value <= 1.0, (row.run, key)
 
 
 def test_hostile_route_is_reported_kept_and_scored(hostile_root, tmp_path):
@@ -74,7 +71,7 @@ def test_hostile_route_is_reported_kept_and_scored(hostile_root, tmp_path):
     assert len(rows) == 2 * (1 + 2 + 2 + 1)
     _assert_finite(rows)
     # A two-frame shift is within the default tolerance of 2: raw pixels still find most places.
-    raw = {r["season_pair"]: r["recall_at_1"] for r in rows if r["method"] == "raw"}
+    raw = {r.season_pair: r.recall_at_1 for r in rows if r.method == "raw"}
     assert raw["summer-fall"] > 0.5, raw
 
 

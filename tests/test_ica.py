@@ -244,23 +244,30 @@ def test_encode_is_pure_under_jit_vmap_and_inside_other_jitted_code():
 
 
 def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
+    from experiments.cells import match
     from vpr_jax.config import parse_config
-    from vpr_jax.methods import MethodContext, PairData, run_ica, run_pca
+    from vpr_jax.methods import METHODS, MethodContext, PairData, fit_pair_pca
 
     route = synthetic_route(300, ("summer", "fall"), 0)
     s, f = route.images["summer"], route.images["fall"]
     pair = PairData("summer", "fall", np.concatenate([s[:200], f[:200]]), s[250:], f[250:],
-                    route.frame_ids[250:], route.frame_ids[250:], fits={})  # fmt: skip
+                    route.frame_ids[250:], route.frame_ids[250:])  # fmt: skip
     cfg = parse_config(["ica.n_components=12", "tb.n_basis_images=5"])
-    cells = list(run_ica(pair, (0, 4), cfg, MethodContext()))
-    state, _ = pair.fits["pca"]
-    run_pca(pair, (0, 4), cfg, MethodContext())
-    assert pair.fits["pca"][0] is state  # PCA reused the fit ICA made, not a second one
+    fit = fit_pair_pca(pair, cfg, None)
+    ctx = MethodContext(removed_pcs=(0, 4), pca_fit=fit)
+    cells = list(METHODS["ica"](pair, cfg, ctx))
+    (coefficients,) = METHODS["pca"](pair, cfg, ctx)
+    # PCA and ICA both work from the fit they are handed, not from one of their own.
+    np.testing.assert_array_equal(coefficients.query, pca.project(fit.state, pair.query))
+    other = fit_pair_pca(pair._replace(train=pair.train[::-1][:300]), cfg, None)
+    (elsewhere,) = METHODS["ica"](pair, cfg, ctx._replace(removed_pcs=(4,), pca_fit=other))
+    assert not np.allclose(elsewhere.query, cells[1].query)
     direct = ica.fit_ica(pair.train, jax.random.key(cfg.seed), n_components=12, removed_pcs=4)
     q = np.asarray(ica.encode(direct, pair.query))
     d = np.asarray(ica.encode(direct, pair.db))
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    np.testing.assert_array_equal(cells[1].top_indices[:, 0], np.argmax(q @ d.T, axis=1))
-    assert cells[1].removed_pcs == 4 and cells[1].basis_images.shape == (5, 32, 64)
-    assert cells[1].n_iter == int(direct.n_iter) and cells[1].fit_seconds > 0
+    (top,) = match(cells[1], pair, 1, (4,), cfg, None)
+    np.testing.assert_array_equal(top[1][:, 0], np.argmax(q @ d.T, axis=1))
+    assert cells[1].removed_pcs == (4,) and cells[1].basis[0].shape == (5, 32, 64)
+    assert cells[1].n_iter == int(direct.n_iter) and cells[1].fit_seconds > fit.seconds

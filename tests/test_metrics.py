@@ -14,6 +14,7 @@ from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
 from vpr_jax.metrics import (
     PR_CONVENTIONS,
+    SCALAR_NAMES,
     Evaluation,
     correct_matches,
     evaluate,
@@ -21,20 +22,12 @@ from vpr_jax.metrics import (
     has_true_match,
     pr_counts,
     pr_curve,
-    top_k,
 )
 
 # every division-by-zero or invalid-value warning is a test failure
 pytestmark = pytest.mark.filterwarnings("error")
 
-SCALARS = (
-    "recall_at_1",
-    "precision_at_full_recall",
-    "auc_pr",
-    "recall_at_100_precision",
-    "recall_at_5",
-    "recall_at_10",
-)
+SCALARS = SCALAR_NAMES  # the results.csv columns, in order
 
 
 # ------------------------------------------------------------------ reference implementations
@@ -324,17 +317,18 @@ def test_evaluate_equals_evaluate_top_k(seed):
     )
 
 
-@pytest.mark.parametrize("block_rows", [1, 3, None])
-def test_top_k_ties_go_to_lowest_index(block_rows):
+def test_evaluate_sends_ties_to_the_lowest_database_index():
     rng = np.random.default_rng(7)
     sim = rng.integers(0, 3, size=(25, 40)).astype(np.float64)  # massive ties
     sim[0] = 1.0  # a row of all-equal scores
-    for k in (1, 4, 10, 40, 50):
-        s, i = top_k(sim, k, block_rows=block_rows)
-        rs, ri = ref_top_k(sim, min(k, 40))
-        np.testing.assert_array_equal(i, ri)
-        np.testing.assert_array_equal(s, rs)
-    np.testing.assert_array_equal(top_k(sim, 5)[1][0], np.arange(5))
+    ids = np.arange(40) * 10  # tolerance 0: only the query's own frame is correct
+    for query_ids in (ids[:25], ids[15:]):
+        ev = evaluate(sim, query_ids, ids, 0)
+        _, ref = ref_top_k(sim, 10)
+        np.testing.assert_array_equal(ev.best_correct, ids[ref[:, 0]] == query_ids)
+        for k in (1, 5, 10):
+            hit = (ids[ref[:, :k]] == query_ids[:, None]).any(axis=1)
+            assert ev.recall_at_k[k] == hit.mean()
 
 
 def test_scalars_dict():

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.conftest import LogLines, write_release
 from vpr_jax.data import nordland
 from vpr_jax.data.frames import frame_id_from_name, parse_frame_list
 from vpr_jax.data.nordland import load_nordland, read_folders, read_image_release, read_videos
@@ -29,19 +30,11 @@ def frame_image(season: str, frame: int) -> np.ndarray:
 
 
 def make_release(root, season: str, frames) -> None:
-    folder = root / season
-    folder.mkdir(parents=True, exist_ok=True)
-    for frame in frames:
-        assert cv2.imwrite(str(folder / f"images-{frame:05d}.png"), frame_image(season, frame))
+    write_release(root, {season: [frame_image(season, f) for f in frames]}, frames)
 
 
 def unit(img: np.ndarray) -> np.ndarray:
     return img / np.float32(255)
-
-
-class Logs(list):
-    def __call__(self, line: str) -> None:
-        self.append(line)
 
 
 # --------------------------------------------------------------------------------------------
@@ -51,7 +44,7 @@ class Logs(list):
 def test_release_reads_frames_as_unit_floats(tmp_path):
     for season in ("spring", "summer"):
         make_release(tmp_path, season, range(1, 7))
-    log = Logs()
+    log = LogLines()
     route = read_image_release(tmp_path, ["spring", "summer"], log=log)
     assert route.frame_ids.dtype == np.int64
     np.testing.assert_array_equal(route.frame_ids, np.arange(1, 7))
@@ -68,7 +61,7 @@ def test_release_reads_frames_as_unit_floats(tmp_path):
 def test_release_keeps_frame_zero(tmp_path):
     for season in ("fall", "winter"):
         make_release(tmp_path, season, range(0, 4))
-    route = read_image_release(tmp_path, ["fall", "winter"], log=Logs())
+    route = read_image_release(tmp_path, ["fall", "winter"], log=LogLines())
     np.testing.assert_array_equal(route.frame_ids, [0, 1, 2, 3])
     np.testing.assert_array_equal(route.images["fall"][0], frame_image("fall", 0) / np.float32(255))
 
@@ -77,7 +70,7 @@ def test_release_gaps_keep_the_intersection_and_report_losses(tmp_path):
     make_release(tmp_path, "spring", [f for f in range(1, 11) if f != 3])
     make_release(tmp_path, "summer", [f for f in range(1, 11) if f not in (7, 8)])
     (tmp_path / "summer" / "notes.txt").write_text("not an image")
-    log = Logs()
+    log = LogLines()
     route = read_image_release(tmp_path, ["spring", "summer"], log=log)
     np.testing.assert_array_equal(route.frame_ids, [1, 2, 4, 5, 6, 9, 10])
     lost = [line for line in log if "different frames" in line]
@@ -92,7 +85,7 @@ def test_release_no_common_frame(tmp_path):
     make_release(tmp_path, "spring", [1, 2])
     make_release(tmp_path, "summer", [3, 4])
     with pytest.raises(UserError, match="share no frame"):
-        read_image_release(tmp_path, ["spring", "summer"], log=Logs())
+        read_image_release(tmp_path, ["spring", "summer"], log=LogLines())
 
 
 def test_frame_list_of_names_numbers_and_ranges(tmp_path):
@@ -103,12 +96,12 @@ def test_frame_list_of_names_numbers_and_ranges(tmp_path):
         "# clean frames\n\nimages-00002.png\n5-7   # a range\n"
         "spring/images-00009.png\n12\n 15 - 16\n"
     )
-    route = read_image_release(tmp_path, ["spring", "summer"], frame_list=listing, log=Logs())
+    route = read_image_release(tmp_path, ["spring", "summer"], frame_list=listing, log=LogLines())
     np.testing.assert_array_equal(route.frame_ids, [2, 5, 6, 7, 9, 12, 15, 16])
     np.testing.assert_array_equal(route.images["summer"][4], unit(frame_image("summer", 9)))
 
     stepped = read_image_release(
-        tmp_path, ["spring", "summer"], frame_list=listing, frame_step=3, log=Logs()
+        tmp_path, ["spring", "summer"], frame_list=listing, frame_step=3, log=LogLines()
     )
     np.testing.assert_array_equal(stepped.frame_ids, [2, 7, 15])
 
@@ -119,9 +112,9 @@ def test_frame_list_naming_absent_frames_is_an_error(tmp_path):
     listing = tmp_path / "frames.txt"
     listing.write_text("1-3\n40\n41\n")
     with pytest.raises(UserError, match=r"names 2 frames absent .*first: 40, 41"):
-        read_image_release(tmp_path, ["spring", "summer"], frame_list=listing, log=Logs())
+        read_image_release(tmp_path, ["spring", "summer"], frame_list=listing, log=LogLines())
     with pytest.raises(UserError, match="does not exist"):
-        read_image_release(tmp_path, ["spring"], frame_list=tmp_path / "nope.txt", log=Logs())
+        read_image_release(tmp_path, ["spring"], frame_list=tmp_path / "nope.txt", log=LogLines())
 
 
 def test_frame_list_parsing(tmp_path):
@@ -145,18 +138,18 @@ def test_frame_list_parsing(tmp_path):
 def test_frame_step_keeps_every_step_th_common_frame(tmp_path):
     for season in ("spring", "summer"):
         make_release(tmp_path, season, range(1, 26))
-    route = read_image_release(tmp_path, ["spring", "summer"], frame_step=10, log=Logs())
+    route = read_image_release(tmp_path, ["spring", "summer"], frame_step=10, log=LogLines())
     np.testing.assert_array_equal(route.frame_ids, [1, 11, 21])
     np.testing.assert_array_equal(route.images["spring"][2], unit(frame_image("spring", 21)))
     for bad in (0, -1, 1.5):
         with pytest.raises(UserError, match="frame_step"):
-            read_image_release(tmp_path, ["spring"], frame_step=bad, log=Logs())
+            read_image_release(tmp_path, ["spring"], frame_step=bad, log=LogLines())
 
 
 def test_season_subset_in_the_order_asked(tmp_path):
     for season in ("spring", "summer", "fall", "winter"):
         make_release(tmp_path, season, range(1, 4))
-    route = read_image_release(tmp_path, ["winter", "spring"], log=Logs())
+    route = read_image_release(tmp_path, ["winter", "spring"], log=LogLines())
     assert route.seasons == ("winter", "spring")
 
 
@@ -164,7 +157,7 @@ def test_release_wrong_size_points_to_folders_source(tmp_path):
     make_release(tmp_path, "spring", [1, 2])
     cv2.imwrite(str(tmp_path / "spring" / "images-00003.png"), np.zeros((64, 64), np.uint8))
     with pytest.raises(UserError, match=r"images-00003\.png is 64x64.*data\.source=folders"):
-        read_image_release(tmp_path, ["spring"], log=Logs())
+        read_image_release(tmp_path, ["spring"], log=LogLines())
 
 
 def test_release_corrupt_and_empty_files_are_named(tmp_path):
@@ -172,10 +165,10 @@ def test_release_corrupt_and_empty_files_are_named(tmp_path):
     path = tmp_path / "spring" / "images-00002.png"
     path.write_bytes(path.read_bytes()[:40])  # truncated
     with pytest.raises(UserError, match=r"images-00002\.png cannot be read"):
-        read_image_release(tmp_path, ["spring"], log=Logs())
+        read_image_release(tmp_path, ["spring"], log=LogLines())
     path.write_bytes(b"")
     with pytest.raises(UserError, match=r"images-00002\.png is empty \(0 bytes\)"):
-        read_image_release(tmp_path, ["spring"], log=Logs())
+        read_image_release(tmp_path, ["spring"], log=LogLines())
 
 
 def test_release_colour_png_becomes_gray_with_one_note(tmp_path):
@@ -184,7 +177,7 @@ def test_release_colour_png_becomes_gray_with_one_note(tmp_path):
     colour = {f: rng.integers(0, 256, (H, W, 3), dtype=np.uint8) for f in (1, 2)}
     for frame, img in colour.items():
         cv2.imwrite(str(tmp_path / "spring" / f"images-{frame:05d}.png"), img)
-    log = Logs()
+    log = LogLines()
     route = read_image_release(tmp_path, ["spring"], log=log)
     for row, frame in enumerate((1, 2)):
         gray = cv2.cvtColor(colour[frame], cv2.COLOR_BGR2GRAY)
@@ -195,28 +188,28 @@ def test_release_colour_png_becomes_gray_with_one_note(tmp_path):
 
 def test_release_path_errors(tmp_path):
     with pytest.raises(UserError, match=r"does not exist: set data\.root="):
-        read_image_release(tmp_path / "missing", ["spring"], log=Logs())
+        read_image_release(tmp_path / "missing", ["spring"], log=LogLines())
     (tmp_path / "file").write_text("x")
     with pytest.raises(UserError, match="is not a directory"):
-        read_image_release(tmp_path / "file", ["spring"], log=Logs())
+        read_image_release(tmp_path / "file", ["spring"], log=LogLines())
     (tmp_path / "empty").mkdir()
     with pytest.raises(UserError, match="is empty"):
-        read_image_release(tmp_path / "empty", ["spring"], log=Logs())
+        read_image_release(tmp_path / "empty", ["spring"], log=LogLines())
     make_release(tmp_path / "data", "summer", [1])
     (tmp_path / "data" / "fall").mkdir()
     with pytest.raises(UserError, match=r"spring is missing \(.* holds fall, summer\)"):
-        read_image_release(tmp_path / "data", ["summer", "spring"], log=Logs())
+        read_image_release(tmp_path / "data", ["summer", "spring"], log=LogLines())
     with pytest.raises(UserError, match="fall holds no images"):
-        read_image_release(tmp_path / "data", ["summer", "fall"], log=Logs())
+        read_image_release(tmp_path / "data", ["summer", "fall"], log=LogLines())
     with pytest.raises(UserError, match="no season"):
-        read_image_release(tmp_path / "data", [], log=Logs())
+        read_image_release(tmp_path / "data", [], log=LogLines())
 
 
 def test_load_nordland_dispatches(tmp_path):
     make_release(tmp_path, "spring", [1, 2])
-    route = load_nordland("nordland_images", tmp_path, ["spring"], cache_dir=None, log=Logs())
+    route = load_nordland("nordland_images", tmp_path, ["spring"], cache_dir=None, log=LogLines())
     assert len(route) == 2
-    route = load_nordland("folders", tmp_path, ["spring"], cache_dir=None, log=Logs())
+    route = load_nordland("folders", tmp_path, ["spring"], cache_dir=None, log=LogLines())
     assert len(route) == 2
     with pytest.raises(UserError, match="unknown data source"):
         load_nordland("kitti", tmp_path, ["spring"], cache_dir=None)
@@ -239,7 +232,7 @@ def test_folders_resize_any_size_and_order_by_number(tmp_path):
         (tmp_path / season / "readme.txt").write_text("ignored")
         for frame, img in src.items():
             cv2.imwrite(str(tmp_path / season / names[frame]), img)
-    log = Logs()
+    log = LogLines()
     route = read_folders(tmp_path, ["summer", "winter"], log=log)
     np.testing.assert_array_equal(route.frame_ids, [1, 2, 10])
     assert route.images["summer"].shape == (3, H, W)
@@ -258,7 +251,7 @@ def test_folders_file_without_number_is_an_error(tmp_path):
     cv2.imwrite(str(tmp_path / "fall" / "frame_1.png"), np.zeros((10, 10), np.uint8))
     cv2.imwrite(str(tmp_path / "fall" / "cover.png"), np.zeros((10, 10), np.uint8))
     with pytest.raises(UserError, match=r"cover\.png has no number"):
-        read_folders(tmp_path, ["fall"], log=Logs())
+        read_folders(tmp_path, ["fall"], log=LogLines())
 
 
 # --------------------------------------------------------------------------------------------
@@ -309,7 +302,7 @@ def test_video_takes_the_first_frame_of_each_second(tmp_path, fps):
     videos.mkdir()
     path = videos / "Nordland_SUMMER.avi"
     write_video(path, fps, round(4 * fps))  # 4 s
-    route = read_videos(videos, ["summer"], cache_dir=tmp_path / "cache", log=Logs())
+    route = read_videos(videos, ["summer"], cache_dir=tmp_path / "cache", log=LogLines())
     np.testing.assert_array_equal(route.frame_ids, [0, 1, 2, 3])
     images = route.images["summer"]
     assert images.shape == (4, H, W) and images.dtype == np.float32
@@ -344,7 +337,7 @@ def test_video_timestamps_missing_fall_back_to_frame_number(tmp_path, monkeypatc
             return getattr(self.cap, name)
 
     monkeypatch.setattr(cv2, "VideoCapture", NoTimestamps)
-    log = Logs()
+    log = LogLines()
     route = read_videos(tmp_path, ["fall"], cache_dir=None, log=log)
     np.testing.assert_array_equal(route.frame_ids, [0, 1, 2, 3])
     for second in range(4):
@@ -357,7 +350,7 @@ def test_video_cache_is_written_then_reused_without_decoding(tmp_path, monkeypat
     write_video(tmp_path / "spring.avi", 25.0, 100)
     write_video(tmp_path / "winter.avi", 25.0, 75)  # 3 s: one frame fewer than spring
     cache = tmp_path / "cache"
-    log = Logs()
+    log = LogLines()
     first = read_videos(tmp_path, ["spring", "winter"], cache_dir=cache, log=log)
     np.testing.assert_array_equal(first.frame_ids, [0, 1, 2])
     assert any("different frames" in line and "spring 1" in line for line in log)
@@ -368,56 +361,56 @@ def test_video_cache_is_written_then_reused_without_decoding(tmp_path, monkeypat
         raise AssertionError("the second load must not decode the video")
 
     monkeypatch.setattr(cv2, "VideoCapture", no_decoding)
-    again = read_videos(tmp_path, ["spring", "winter"], cache_dir=cache, log=Logs())
+    again = read_videos(tmp_path, ["spring", "winter"], cache_dir=cache, log=LogLines())
     np.testing.assert_array_equal(again.frame_ids, first.frame_ids)
     for season in ("spring", "winter"):
         np.testing.assert_array_equal(again.images[season], first.images[season])
-    stepped = read_videos(tmp_path, ["spring"], cache_dir=cache, frame_step=2, log=Logs())
+    stepped = read_videos(tmp_path, ["spring"], cache_dir=cache, frame_step=2, log=LogLines())
     np.testing.assert_array_equal(stepped.frame_ids, [0, 2])
 
     # a changed video (new mtime) is a new cache key: it is decoded again
     stat = (tmp_path / "spring.avi").stat()
     os.utime(tmp_path / "spring.avi", ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
     with pytest.raises(AssertionError, match="must not decode"):
-        read_videos(tmp_path, ["spring"], cache_dir=cache, log=Logs())
+        read_videos(tmp_path, ["spring"], cache_dir=cache, log=LogLines())
 
 
 def test_bad_cache_tells_to_delete_it(tmp_path):
     write_video(tmp_path / "summer.avi", 25.0, 50)
     cache = tmp_path / "cache"
-    read_videos(tmp_path, ["summer"], cache_dir=cache, log=Logs())
+    read_videos(tmp_path, ["summer"], cache_dir=cache, log=LogLines())
     (path,) = cache.iterdir()
     frames = np.zeros((2, H, W), np.float32)
     frames[1, 3, 4] = np.nan
     np.savez(path, frames=frames, frame_ids=np.arange(2))
     with pytest.raises(UserError, match="NaN or Inf.*delete it"):
-        read_videos(tmp_path, ["summer"], cache_dir=cache, log=Logs())
+        read_videos(tmp_path, ["summer"], cache_dir=cache, log=LogLines())
     np.savez(path, frames=np.zeros((2, 16, 16), np.uint8), frame_ids=np.arange(2))
     with pytest.raises(UserError, match="shape.*delete it"):
-        read_videos(tmp_path, ["summer"], cache_dir=cache, log=Logs())
+        read_videos(tmp_path, ["summer"], cache_dir=cache, log=LogLines())
     path.write_bytes(b"junk")
     with pytest.raises(UserError, match="cannot be read.*delete it"):
-        read_videos(tmp_path, ["summer"], cache_dir=cache, log=Logs())
+        read_videos(tmp_path, ["summer"], cache_dir=cache, log=LogLines())
 
 
 def test_video_errors(tmp_path):
     (tmp_path / "summer.mp4").write_bytes(os.urandom(4096))
     with pytest.raises(UserError, match=r"summer\.mp4 cannot be opened"):
-        read_videos(tmp_path, ["summer"], cache_dir=None, log=Logs())
+        read_videos(tmp_path, ["summer"], cache_dir=None, log=LogLines())
 
     write_video(tmp_path / "fall.avi", 25.0, 10)  # 0.4 s
     with pytest.raises(UserError, match=r"fall\.avi lasts only 0\.40 s"):
-        read_videos(tmp_path, ["fall"], cache_dir=None, log=Logs())
+        read_videos(tmp_path, ["fall"], cache_dir=None, log=LogLines())
 
     with pytest.raises(UserError, match="no video for season winter"):
-        read_videos(tmp_path, ["winter"], cache_dir=None, log=Logs())
+        read_videos(tmp_path, ["winter"], cache_dir=None, log=LogLines())
 
     write_video(tmp_path / "Fall_2.avi", 25.0, 30)
     with pytest.raises(UserError, match=r"several videos .*Fall_2\.avi, fall\.avi"):
-        read_videos(tmp_path, ["fall"], cache_dir=None, log=Logs())
+        read_videos(tmp_path, ["fall"], cache_dir=None, log=LogLines())
 
     with pytest.raises(UserError, match="does not exist"):
-        read_videos(tmp_path / "nope", ["fall"], cache_dir=None, log=Logs())
+        read_videos(tmp_path / "nope", ["fall"], cache_dir=None, log=LogLines())
 
 
 def test_video_frame_list_selects_seconds(tmp_path):
@@ -425,7 +418,7 @@ def test_video_frame_list_selects_seconds(tmp_path):
     listing = tmp_path / "frames.txt"
     listing.write_text("1-2\n")
     route = nordland.load_nordland(
-        "nordland_videos", tmp_path, ["spring"], cache_dir=None, frame_list=listing, log=Logs()
+        "nordland_videos", tmp_path, ["spring"], cache_dir=None, frame_list=listing, log=LogLines()
     )
     np.testing.assert_array_equal(route.frame_ids, [1, 2])
     assert abs(route.images["spring"][1, :16, :32].mean() * 255 - second_level(2)) < 3

@@ -4,16 +4,12 @@ descriptors that make cosine matching arbitrary."""
 import numpy as np
 import pytest
 
+from tests.conftest import LogLines
 from vpr_jax.data.route import Route
 from vpr_jax.data.screen import constant_frames, repeated_frames, screen_route
 from vpr_jax.errors import UserError
 from vpr_jax.matching import degenerate_rows
 from vpr_jax.methods import degenerate_warning
-
-
-class Lines(list):
-    def __call__(self, line):
-        self.append(line)
 
 
 def _route(n=40, seed=0):
@@ -44,7 +40,7 @@ def test_constant_frames_are_reported_and_kept_by_default():
     route = _route()
     route.images["summer"][[4, 5]] = 0.0  # a tunnel seen in summer
     route.images["fall"][[5, 6, 30]] = 1.0  # and in fall, plus a washed-out frame
-    log = Lines()
+    log = LogLines()
     kept = screen_route(route, max_std=0.01, drop=False, log=log)
     assert kept is route
     assert len(log) == 1
@@ -56,7 +52,7 @@ def test_dropping_constant_frames_keeps_seasons_aligned():
     route = _route()
     route.images["summer"][[4, 5]] = 0.0
     route.images["fall"][[5, 6, 30]] = 1.0
-    log = Lines()
+    log = LogLines()
     out = screen_route(route, max_std=0.01, drop=True, log=log)
     dropped = [4, 5, 6, 30]
     keep = np.setdiff1d(np.arange(len(route)), dropped)
@@ -69,7 +65,7 @@ def test_dropping_constant_frames_keeps_seasons_aligned():
 def test_repeated_frames_are_reported_not_dropped():
     route = _route()
     route.images["fall"][11:15] = route.images["fall"][10]
-    log = Lines()
+    log = LogLines()
     assert screen_route(route, max_std=0.01, drop=True, log=log) is route
     assert len(log) == 1 and "summer 0, fall 4" in log[0] and "kept" in log[0]
 
@@ -79,7 +75,7 @@ def test_a_route_of_only_constant_frames_is_refused():
     for images in route.images.values():
         images[:] = 0.0
     with pytest.raises(UserError, match="every frame is constant"):
-        screen_route(route, max_std=0.01, drop=True, log=Lines())
+        screen_route(route, max_std=0.01, drop=True, log=LogLines())
 
 
 def test_degenerate_rows_match_numpy():

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from tests.conftest import REPO, SMALL, numpy_cosine, run_cli
+from vpr_jax.metrics import SCALAR_NAMES
 from vpr_jax.results import read_results
 
 EIGHT = {"XLA_FLAGS": "--xla_force_host_platform_device_count=8"}
-METRICS = ("recall_at_1", "precision_at_full_recall", "auc_pr", "recall_at_100_precision",
-           "recall_at_5", "recall_at_10")
+METRICS = SCALAR_NAMES
 
 
 def _env(**extra: str) -> dict:
@@ -76,14 +76,14 @@ def _same_rows(a: list[dict], b: list[dict]) -> None:
     """Same cells, same metrics: closed-form methods to rounding. Trained auto-encoders only
     closely: Adam turns rounding-level gradient differences of nearly dead units into whole
     steps (tests above check gradients and SGD fits to rounding)."""
-    key = lambda r: (r["season_pair"], r["method"], r["removed_pcs"])  # noqa: E731
+    key = lambda r: (r.season_pair, r.method, r.removed_pcs)  # noqa: E731
     assert sorted(map(key, a)) == sorted(map(key, b))
     other = {key(r): r for r in b}
     for row in a:
-        tol = 0.02 if row["method"] in ("fae", "cae") else 1e-6
+        tol = 0.02 if row.method in ("fae", "cae") else 1e-6
         for metric in METRICS:
-            expected = other[key(row)][metric]
-            assert row[metric] == pytest.approx(expected, abs=tol), (key(row), metric)
+            expected = getattr(other[key(row)], metric)
+            assert getattr(row, metric) == pytest.approx(expected, abs=tol), (key(row), metric)
 
 
 def test_the_sweep_on_eight_devices_equals_the_single_device_sweep(small_sweep, tmp_path):
@@ -93,7 +93,7 @@ def test_the_sweep_on_eight_devices_equals_the_single_device_sweep(small_sweep, 
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "mesh: 8 cpu devices" in proc.stdout
     single = [r for r in read_results(logdir / "results.csv")
-              if r["season_pair"] == "summer-fall" and r["method"] != "cae"]
+              if r.season_pair == "summer-fall" and r.method != "cae"]
     _same_rows(read_results(tmp_path / "runs" / "results.csv"), single)
 
 

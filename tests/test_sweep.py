@@ -6,20 +6,13 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensorboard.plugins.hparams import plugin_data_pb2
 from tensorboard.util import tensor_util
 
-from tests.conftest import SMALL, numpy_cosine, run_cli
+from tests.conftest import SMALL, numpy_cosine, read_run, run_cli
 from vpr_jax.results import COLUMNS, read_results
 
 PAIRS = {"summer-spring", "summer-fall", "spring-fall"}
-
-
-def _accumulator(path):
-    ea = EventAccumulator(str(path), size_guidance={"scalars": 0, "tensors": 0, "images": 0})
-    ea.Reload()
-    return ea
 
 
 def test_results_table_has_one_row_per_cell(small_sweep):
@@ -28,24 +21,24 @@ def test_results_table_has_one_row_per_cell(small_sweep):
         header = next(csv.reader(f))
     assert tuple(header) == COLUMNS
     rows = read_results(logdir / "results.csv")
-    cells = {(r["season_pair"], r["method"], r["removed_pcs"]) for r in rows}
+    cells = {(r.season_pair, r.method, r.removed_pcs) for r in rows}
     # raw, PCA and ICA at k = 0, 5, 20, FAE, CAE
     assert len(rows) == len(cells) == 3 * (1 + 3 + 3 + 1 + 1)
-    assert {r["season_pair"] for r in rows} == PAIRS
+    assert {r.season_pair for r in rows} == PAIRS
     for r in rows:
-        assert r["db_season"] + "-" + r["query_season"] == r["season_pair"]
-        assert r["n_train"] == 600 and r["n_test"] == 120 and r["tolerance"] == 2
+        assert r.db_season + "-" + r.query_season == r.season_pair
+        assert r.n_train == 600 and r.n_test == 120 and r.tolerance == 2
         for key in ("recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_10"):
-            assert 0.0 <= r[key] <= 1.0
+            assert 0.0 <= getattr(r, key) <= 1.0
         # Every query has a true match, so the PR curve reaches full recall at precision R@1.
-        assert r["precision_at_full_recall"] == pytest.approx(r["recall_at_1"])
-        assert r["recall_at_1"] <= r["recall_at_5"] <= r["recall_at_10"]
-        if r["method"] == "ica":
-            assert 1 <= r["n_iter"] <= 200 and r["converged"] == (r["n_iter"] < 200)
-        elif r["method"] in ("fae", "cae"):
-            assert r["n_iter"] == 2 and r["converged"] == 0  # 2 epochs, no early stop
+        assert r.precision_at_full_recall == pytest.approx(r.recall_at_1)
+        assert r.recall_at_1 <= r.recall_at_5 <= r.recall_at_10
+        if r.method == "ica":
+            assert 1 <= r.n_iter <= 200 and r.converged == (r.n_iter < 200)
+        elif r.method in ("fae", "cae"):
+            assert r.n_iter == 2 and r.converged == 0  # 2 epochs, no early stop
         else:
-            assert r["n_iter"] == 0 and r["converged"] == 1
+            assert r.n_iter == 0 and r.converged == 1
     # One plain line per finished cell, whatever the terminal.
     assert proc.stdout.count("recall@1") == len(rows)
 
@@ -54,37 +47,37 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
     logdir, _ = small_sweep
     rows = read_results(logdir / "results.csv")
     for row in rows:
-        ea = _accumulator(logdir / row["run"])
+        ea = read_run(logdir / row.run)
         tags = ea.Tags()
         for key in ("recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_5"):
             (event,) = ea.Scalars(f"metrics/{key}")
-            assert event.value == pytest.approx(row[key], abs=1e-6)
+            assert event.value == pytest.approx(getattr(row, key), abs=1e-6)
         (fit,) = ea.Scalars("timing/fit_seconds")
-        assert fit.value == pytest.approx(row["fit_seconds"], rel=1e-5)
+        assert fit.value == pytest.approx(row.fit_seconds, rel=1e-5)
         (pr,) = ea.Tensors("pr_curve")
         data = tensor_util.make_ndarray(pr.tensor_proto)
         assert data.shape == (6, 201)
         tp, fp, tn, fn = data[:4, 0]  # threshold 0 accepts every query
-        assert tp / (tp + fp) == pytest.approx(row["recall_at_1"], abs=1e-6)
+        assert tp / (tp + fp) == pytest.approx(row.recall_at_1, abs=1e-6)
         assert "matches/query_best_true" in tags["images"]
         for key in ("n_iter", "converged"):
             (event,) = ea.Scalars(f"fit/{key}")
-            assert event.value == row[key]
+            assert event.value == getattr(row, key)
         has_removed = "basis/removed_components" in tags["images"]
-        assert has_removed == (row["method"] == "pca" and row["removed_pcs"] > 0)
+        assert has_removed == (row.method == "pca" and row.removed_pcs > 0)
         has_ics = "basis/independent_components" in tags["images"]
-        assert has_ics == (row["method"] == "ica")
-        assert ("basis/hidden_units" in tags["images"]) == (row["method"] == "fae")
+        assert has_ics == (row.method == "ica")
+        assert ("basis/hidden_units" in tags["images"]) == (row.method == "fae")
         if has_ics:  # the first 8 mixing columns as 32x64 tiles in a 2 x 4 grid
             (image,) = ea.Images("basis/independent_components")
             assert (image.height, image.width) == (2 * 32 + 1, 4 * 64 + 3)
         content = ea.PluginTagToContent("hparams")
         info = plugin_data_pb2.HParamsPluginData.FromString(
             content["_hparams_/session_start_info"]).session_start_info
-        assert info.hparams["season_pair"].string_value == row["season_pair"]
-        assert info.hparams["removed_pcs"].number_value == row["removed_pcs"]
-        assert info.hparams["ds"].number_value == row["ds"] == 1
-    root = _accumulator(logdir)
+        assert info.hparams["season_pair"].string_value == row.season_pair
+        assert info.hparams["removed_pcs"].number_value == row.removed_pcs
+        assert info.hparams["ds"].number_value == row.ds == 1
+    root = read_run(logdir)
     experiment = plugin_data_pb2.HParamsPluginData.FromString(
         root.PluginTagToContent("hparams")["_hparams_/experiment"]).experiment
     assert {h.name for h in experiment.hparam_infos} == {"season_pair", "method", "removed_pcs",
@@ -96,7 +89,7 @@ def test_autoencoder_training_is_logged_and_checkpointed(small_sweep):
     logdir, proc = small_sweep
     for pair in PAIRS:
         for method in ("fae", "cae"):
-            ea = _accumulator(logdir / pair / f"{method}_training")
+            ea = read_run(logdir / pair / f"{method}_training")
             steps = [e.step for e in ea.Scalars("loss/train")]
             assert steps == list(range(1, len(steps) + 1)) and len(steps) >= 2
             assert len(ea.Scalars("loss/validation")) == 2  # one per epoch
@@ -125,13 +118,13 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
     shutil.copytree(finished, logdir)
     rows = read_results(logdir / "results.csv")
     # Simulate a crash after PCA and ICA runs were written but before their rows were.
-    spring_fall = [r for r in rows if r["season_pair"] == "spring-fall"]
-    lost = [r for r in spring_fall if r["method"] == "pca"][:2] + [
-        r for r in spring_fall if r["method"] in ("ica", "fae")
+    spring_fall = [r for r in rows if r.season_pair == "spring-fall"]
+    lost = [r for r in spring_fall if r.method == "pca"][:2] + [
+        r for r in spring_fall if r.method in ("ica", "fae")
     ][-2:]
     kept = [r for r in rows if r not in lost]
     lines = (logdir / "results.csv").read_text().splitlines()
-    keep_runs = {r["run"] for r in kept}
+    keep_runs = {r.run for r in kept}
     (logdir / "results.csv").write_text(
         "\n".join([lines[0]] + [ln for ln in lines[1:] if ln.split(",")[-1] in keep_runs]) + "\n")
     # The models trained by the first run are restored, not retrained.
@@ -145,12 +138,13 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
     again = read_results(logdir / "results.csv")
     assert len(again) == len(rows)
     metric = ("recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_10")
-    by_run = {r["run"]: r for r in again}
+    by_run = {r.run: r for r in again}
     for r in rows:  # recomputed cells give the same numbers: deterministic
-        assert all(by_run[r["run"]][m] == pytest.approx(r[m], abs=1e-6) for m in metric)
+        redone = by_run[r.run]
+        assert all(getattr(redone, m) == pytest.approx(getattr(r, m), abs=1e-6) for m in metric)
     # The recomputed runs hold one event file each: the stale ones were replaced.
     for r in lost:
-        assert len(list((logdir / r["run"]).glob("events.out.tfevents.*"))) == 1
+        assert len(list((logdir / r.run).glob("events.out.tfevents.*"))) == 1
     # A finished sweep run again computes nothing.
     proc = run_cli(*SMALL, f"logdir={logdir}")
     assert proc.returncode == 0 and proc.stdout.count("recall@1") == 0
@@ -160,7 +154,7 @@ def test_named_pairs_select_database_and_query_seasons(tmp_path):
     proc = run_cli(*SMALL, "season_pairs=fall-summer", "methods=raw", f"logdir={tmp_path}")
     assert proc.returncode == 0, proc.stderr
     (row,) = read_results(tmp_path / "results.csv")
-    assert (row["db_season"], row["query_season"]) == ("fall", "summer")
+    assert (row.db_season, row.query_season) == ("fall", "summer")
 
 
 def test_pixel_output_gives_the_same_metrics(small_sweep, tmp_path):
@@ -168,10 +162,10 @@ def test_pixel_output_gives_the_same_metrics(small_sweep, tmp_path):
     proc = run_cli(*SMALL, "season_pairs=summer-fall", "methods=pca", "pca.output=pixels",
                    f"logdir={tmp_path}")
     assert proc.returncode == 0, proc.stderr
-    coeff = {r["run"]: r for r in read_results(logdir / "results.csv")}
+    coeff = {r.run: r for r in read_results(logdir / "results.csv")}
     for r in read_results(tmp_path / "results.csv"):
-        assert r["recall_at_1"] == pytest.approx(coeff[r["run"]]["recall_at_1"], abs=0.01)
-        assert np.isfinite(r["encode_ms_per_image"])
+        assert r.recall_at_1 == pytest.approx(coeff[r.run].recall_at_1, abs=0.01)
+        assert np.isfinite(r.encode_ms_per_image)
 
 
 def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path):
@@ -185,7 +179,7 @@ def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path)
                    "methods=[raw]", "season_pairs=summer-fall", f"logdir={logdir}")  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     (row,) = read_results(logdir / "results.csv")
-    assert row["n_test"] == 120 and row["n_train"] == 2 * (700 - 120 - 4 * 20)
+    assert row.n_test == 120 and row.n_train == 2 * (700 - 120 - 4 * 20)
 
     # Oracle: numpy brute force over every frame of the database season.
     route = synthetic_route(700, ("summer", "fall"), 0)
@@ -195,5 +189,5 @@ def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path)
     db = flat["summer"] - mean
     query = flat["fall"][split.test] - mean
     best = route.frame_ids[np.argmax(numpy_cosine(query, db), axis=1)]
-    correct = np.abs(best - route.frame_ids[split.test]) <= row["tolerance"]
-    assert row["recall_at_1"] == pytest.approx(correct.mean(), abs=1 / 120 + 1e-9)
+    correct = np.abs(best - route.frame_ids[split.test]) <= row.tolerance
+    assert row.recall_at_1 == pytest.approx(correct.mean(), abs=1 / 120 + 1e-9)

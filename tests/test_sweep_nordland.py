@@ -4,7 +4,7 @@ test writes itself (from the built-in renderer, so the places are real places)."
 import cv2
 import numpy as np
 
-from tests.conftest import run_cli
+from tests.conftest import run_cli, write_release
 from vpr_jax.data.synthetic import render_season
 from vpr_jax.results import read_results
 
@@ -19,19 +19,15 @@ def _frames(season):
 
 
 def test_image_release_folder_runs_through_the_cli(tmp_path):
-    root = tmp_path / "nordland"
-    for season in SEASONS:
-        (root / season).mkdir(parents=True)
-        for i, img in enumerate(_frames(season), start=1):
-            cv2.imwrite(str(root / season / f"images-{i:05d}.png"), img)
+    root = write_release(tmp_path / "nordland", {s: _frames(s) for s in SEASONS})
     proc = run_cli("data.source=nordland_images", f"data.root={root}", *SPLIT,
                    f"logdir={tmp_path / 'runs'}")
     assert proc.returncode == 0, proc.stderr
     rows = read_results(tmp_path / "runs" / "results.csv")
-    assert {(r["method"], r["removed_pcs"]) for r in rows} == {("raw", 0), ("pca", 0),
+    assert {(r.method, r.removed_pcs) for r in rows} == {("raw", 0), ("pca", 0),
                                                               ("pca", 3)}
-    assert all(r["n_train"] == 100 and r["n_test"] == 30 for r in rows)
-    assert all(r["recall_at_1"] > 0 for r in rows)
+    assert all(r.n_train == 100 and r.n_test == 30 for r in rows)
+    assert all(r.recall_at_1 > 0 for r in rows)
 
 
 def test_season_videos_run_through_the_cli_and_are_cached(tmp_path):
@@ -51,10 +47,10 @@ def test_season_videos_run_through_the_cli_and_are_cached(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "cache").iterdir())) == 2
     (row,) = read_results(tmp_path / "runs" / "results.csv")
-    assert row["n_test"] == 30 and row["recall_at_1"] > 0
+    assert row.n_test == 30 and row.recall_at_1 > 0
     root.joinpath("nordland_summer.avi").touch()  # newer mtime: a new cache entry
     proc = run_cli(*args, f"logdir={tmp_path / 'runs2'}")
     assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "cache").iterdir())) == 3
     again = read_results(tmp_path / "runs2" / "results.csv")[0]
-    assert again["recall_at_1"] == row["recall_at_1"]
+    assert again.recall_at_1 == row.recall_at_1

@@ -6,18 +6,16 @@ season's brightness."""
 import csv
 import shutil
 
-import cv2
 import numpy as np
 import pytest
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensorboard.plugins.hparams import plugin_data_pb2
 
-from tests.conftest import run_cli
+from tests.conftest import read_run, run_cli, write_release
 from vpr_jax.data.synthetic import synthetic_route
+from vpr_jax.metrics import SCALAR_NAMES
 from vpr_jax.results import COLUMNS, read_results
 
-METRICS = ("recall_at_1", "precision_at_full_recall", "auc_pr", "recall_at_100_precision",
-           "recall_at_5", "recall_at_10")
+METRICS = SCALAR_NAMES
 ARGS = ["data.source=nordland_images", "split.n_train=200", "split.gap=10", "split.n_test=200",
         "data.seasons=[summer,fall]", "season_pairs=summer-fall", "methods=[raw,pca]",
         "removed_pcs=[0,5]", "preprocess=patchnorm", "sequence.enabled=true",
@@ -32,12 +30,9 @@ def releases(tmp_path_factory):
     base = {s: np.rint(im * 200).astype(np.uint8) for s, im in route.images.items()}
     roots = {}
     for name, shift in (("base", 0), ("brighter", BRIGHTER)):
-        roots[name] = tmp_path_factory.mktemp(name) / "data"
-        for season, frames in base.items():
-            (roots[name] / season).mkdir(parents=True)
-            frames = frames + np.uint8(shift if season == "fall" else 0)  # <= 240: no clip
-            for i, img in enumerate(frames, start=1):
-                cv2.imwrite(str(roots[name] / season / f"images-{i:05d}.png"), img)
+        shifted = {s: frames + np.uint8(shift if s == "fall" else 0)  # <= 240: no clip
+                   for s, frames in base.items()}
+        roots[name] = write_release(tmp_path_factory.mktemp(name) / "data", shifted)
     return roots
 
 
@@ -57,18 +52,17 @@ def base_sweep(releases, tmp_path_factory):
 def test_every_method_runs_at_every_ds_and_sequences_help(base_sweep):
     logdir, rows, proc = base_sweep
     assert "patch normalisation, 8x8 patches" in proc.stdout
-    cells = {(r["method"], r["removed_pcs"], r["ds"]): r for r in rows}
+    cells = {(r.method, r.removed_pcs, r.ds): r for r in rows}
     assert set(cells) == {(m, k, ds) for m, k in (("raw", 0), ("pca", 0), ("pca", 5))
                           for ds in (1, 10)}
     for (method, k, ds), row in cells.items():
         if ds == 10:  # on a route, sequences of 10 beat single images for every method
-            assert row["recall_at_1"] > cells[(method, k, 1)]["recall_at_1"], (method, k)
+            assert row.recall_at_1 > cells[(method, k, 1)].recall_at_1, (method, k)
         name = f"summer-fall/{method}_k{k:03d}" if method == "pca" else f"summer-fall/{method}"
-        assert row["run"] == (name if ds == 1 else f"{name}_ds10")
-        ea = EventAccumulator(str(logdir / row["run"]), size_guidance={"scalars": 0})
-        ea.Reload()
+        assert row.run == (name if ds == 1 else f"{name}_ds10")
+        ea = read_run(logdir / row.run)
         (recall,) = ea.Scalars("metrics/recall_at_1")
-        assert recall.value == pytest.approx(row["recall_at_1"], abs=1e-6)
+        assert recall.value == pytest.approx(row.recall_at_1, abs=1e-6)
         info = plugin_data_pb2.HParamsPluginData.FromString(
             ea.PluginTagToContent("hparams")["_hparams_/session_start_info"]
         ).session_start_info
@@ -83,9 +77,9 @@ def test_patch_normalisation_makes_results_blind_to_query_brightness(releases, b
     rows, _ = _sweep(releases["brighter"], tmp_path / "runs")
     assert len(rows) == len(base_rows)
     for row, base in zip(rows, base_rows, strict=True):
-        assert row["run"] == base["run"]
+        assert row.run == base.run
         for key in METRICS:
-            assert row[key] == pytest.approx(base[key], abs=1e-4), (row["run"], key)
+            assert getattr(row, key) == pytest.approx(getattr(base, key), abs=1e-4), (row.run, key)
 
 
 def test_a_longer_ds_extends_a_finished_sweep(releases, base_sweep, tmp_path):
@@ -95,7 +89,7 @@ def test_a_longer_ds_extends_a_finished_sweep(releases, base_sweep, tmp_path):
     new_rows, proc = _sweep(releases["base"], extended, "sequence.ds=[1,5,10]")
     assert "resuming: 6 of 9 cells already in results.csv" in proc.stdout
     assert new_rows[:6] == rows  # untouched, in order
-    assert {(r["run"], r["ds"]) for r in new_rows[6:]} == {
+    assert {(r.run, r.ds) for r in new_rows[6:]} == {
         ("summer-fall/raw_ds05", 5), ("summer-fall/pca_k000_ds05", 5),
         ("summer-fall/pca_k005_ds05", 5)}
 
@@ -110,7 +104,7 @@ def test_a_results_table_written_before_the_ds_column_reads_as_single_images(
         writer = csv.DictWriter(dst, fieldnames=columns, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(r for r in reader if r["ds"] == "1")
-    assert read_results(old) == [r for r in rows if r["ds"] == 1]
+    assert read_results(old) == [r for r in rows if r.ds == 1]
 
 
 def test_sequence_lengths_without_enabling_them_are_pointed_out(tmp_path):

@@ -2,13 +2,16 @@
 
 One folder per trained model, one orbax step per saved epoch (the training loop saves at
 most every ``train.checkpoint_every_s`` seconds, and always the last epoch), the last two
-kept.
-Each step holds three items:
-- ``train``: what resuming needs (``params``, ``opt_state``), restored against a target so
-  optax states keep their types;
-- ``model``: the best parameters so far (what ``vpr_jax.load_encoder`` restores);
-- ``meta`` (JSON): epoch, step, best validation loss, early-stopping counter, ``done``, the
-  model ``spec`` and an ``identity`` of everything that determines the weights.
+kept. Each step holds two items:
+- ``state``: the whole training state (``vpr_jax.encoders.train.TrainState``: parameters,
+  optimizer state, best parameters so far and the counters), one pytree, restored against
+  a target so optax states keep their types and the counters their exact values;
+- ``meta`` (JSON): the model ``spec``, the image shape, an ``identity`` of everything that
+  determines the weights, ``done`` / ``stopped_early`` and a readable summary (epoch, step,
+  best validation loss, training seconds).
+
+Checkpoints written before 2026-12 (format 1) hold ``train`` (params, opt_state), ``model``
+(the best parameters) and the counters in ``meta``; they are read into the same state.
 
 Saves are synchronous: an epoch counts as saved only once its step is committed. A process
 killed mid-save leaves a ``*.orbax-checkpoint-tmp`` folder that orbax ignores.
@@ -21,7 +24,7 @@ waits on the others. The checkpoint folder must then be on a file system all hos
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import jax
 import numpy as np
@@ -29,15 +32,22 @@ import orbax.checkpoint as ocp
 
 from vpr_jax.errors import UserError
 
-
-class Restored(NamedTuple):
-    train: Any | None  # {"params", "opt_state"} or None when not asked for
-    model: Any  # best parameters
-    meta: dict
+FORMAT = 2
+State = TypeVar("State", bound=NamedTuple)
+# Format 1 kept the training state's counters in its JSON meta, under these names.
+_FORMAT1_COUNTERS = {"best_val": "best_val_loss", "bad_epochs": "bad_epochs", "epoch": "epoch",
+                     "step": "step", "seconds": "train_seconds"}  # fmt: skip
 
 
 def _abstract(tree):
-    return jax.tree.map(ocp.utils.to_shape_dtype_struct, tree)
+    """Restore targets: arrays by shape and dtype; Python numbers as numpy scalars, so a
+    float64 loss or an int64 counter comes back exact (not as a float32 device array)."""
+    def leaf(x):
+        if isinstance(x, int | float | np.number):
+            return np.asarray(x)
+        return ocp.utils.to_shape_dtype_struct(x)
+
+    return jax.tree.map(leaf, tree)
 
 
 def _manager(directory: Path) -> ocp.CheckpointManager:
@@ -53,6 +63,17 @@ def _manager(directory: Path) -> ocp.CheckpointManager:
     return ocp.CheckpointManager(Path(directory).expanduser().resolve(), options=options)
 
 
+def _latest(manager: ocp.CheckpointManager, directory: Path) -> int:
+    step = manager.latest_step()
+    if step is None:
+        raise UserError(f"{directory} holds no checkpoint: train a model there first")
+    return step
+
+
+def _format(manager: ocp.CheckpointManager, step: int) -> int:
+    return FORMAT if (Path(manager.directory) / str(step) / "state").is_dir() else 1
+
+
 def has_checkpoint(directory: Path) -> bool:
     directory = Path(directory)
     if not directory.is_dir():
@@ -64,43 +85,55 @@ def has_checkpoint(directory: Path) -> bool:
 def read_meta(directory: Path) -> dict:
     """The JSON metadata of the newest step."""
     with _manager(directory) as manager:
-        step = manager.latest_step()
-        if step is None:
-            raise UserError(f"{directory} holds no checkpoint: train a model there first")
+        step = _latest(manager, directory)
         return manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
 
 
-def restore(directory: Path, model_like, train_like=None) -> Restored:
-    """The newest step; ``*_like`` are trees of the right structure, shapes and dtypes."""
+def restore(directory: Path, like: State) -> tuple[State, dict]:
+    """The newest step's training state and metadata; ``like`` is a state of the right
+    structure, shapes and dtypes (a freshly initialised one)."""
     with _manager(directory) as manager:
-        step = manager.latest_step()
-        if step is None:
-            raise UserError(f"{directory} holds no checkpoint: train a model there first")
-        items = {
-            "model": ocp.args.StandardRestore(_abstract(model_like)),
-            "meta": ocp.args.JsonRestore(),
-        }
-        if train_like is not None:
-            items["train"] = ocp.args.StandardRestore(_abstract(train_like))
-        out = manager.restore(step, args=ocp.args.Composite(**items))
-        return Restored(out.get("train") if train_like is not None else None, out.model, out.meta)
+        step = _latest(manager, directory)
+        if _format(manager, step) == FORMAT:
+            out = manager.restore(step, args=ocp.args.Composite(
+                state=ocp.args.StandardRestore(_abstract(like)), meta=ocp.args.JsonRestore()))
+            state = jax.tree.map(lambda x, y: type(y)(x) if isinstance(y, int | float) else x,
+                                 out.state, like)  # numpy scalars back to Python numbers
+            return state, out.meta
+        train_like = {"params": like.params, "opt_state": like.opt_state}
+        out = manager.restore(step, args=ocp.args.Composite(
+            train=ocp.args.StandardRestore(_abstract(train_like)),
+            model=ocp.args.StandardRestore(_abstract(like.best_params)),
+            meta=ocp.args.JsonRestore()))  # fmt: skip
+        counters = {f: type(getattr(like, f))(out.meta[k]) for f, k in _FORMAT1_COUNTERS.items()}
+        return like._replace(params=out.train["params"], opt_state=out.train["opt_state"],
+                             best_params=out.model, **counters), out.meta  # fmt: skip
 
 
-def save(directory: Path, step: int, train, model, meta: dict) -> None:
+def restore_model(directory: Path, params_like) -> Any:
+    """The best parameters of the newest step, without the rest of the training state."""
+    with _manager(directory) as manager:
+        step = _latest(manager, directory)
+        if _format(manager, step) == 1:
+            return manager.restore(step, args=ocp.args.Composite(
+                model=ocp.args.StandardRestore(_abstract(params_like)))).model  # fmt: skip
+        # Only the best parameters of the state item, read as host arrays.
+        part = {"best_params": jax.tree.map(np.asarray, params_like)}
+        restore_args = jax.tree.map(lambda _: ocp.RestoreArgs(restore_type=np.ndarray), part)
+        out = manager.restore(step, args=ocp.args.Composite(state=ocp.args.PyTreeRestore(
+            item=part, restore_args=restore_args, partial_restore=True)))  # fmt: skip
+        return jax.device_put(out.state["best_params"])
+
+
+def save(directory: Path, step: int, state: NamedTuple, meta: dict) -> None:
     """Commit one step (an epoch) synchronously; keep the last two. Process 0 only."""
     if jax.process_index() != 0:
         return
     # Host copies: a model replicated over several processes' devices is not addressable
     # from one process, its numpy copy is.
-    train, model = jax.tree.map(np.asarray, (train, model))
+    state = jax.tree.map(np.asarray, state)
     Path(directory).mkdir(parents=True, exist_ok=True)
     with _manager(directory) as manager:
-        manager.save(
-            step,
-            args=ocp.args.Composite(
-                train=ocp.args.StandardSave(train),
-                model=ocp.args.StandardSave(model),
-                meta=ocp.args.JsonSave(meta),
-            ),
-        )
+        manager.save(step, args=ocp.args.Composite(
+            state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave({**meta, "format": FORMAT})))
         manager.wait_until_finished()

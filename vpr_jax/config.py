@@ -17,6 +17,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from vpr_jax.errors import UserError
 from vpr_jax.metrics import PR_CONVENTIONS
+from vpr_jax.shapes import IMAGE_SHAPE
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
 SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")
@@ -263,8 +264,6 @@ class PatchNormConfig:
     rounded: bool = False  # openSeqSLAM's integer variant: grey level 127 + round(z)
 
     def __post_init__(self):
-        from vpr_jax.data.route import IMAGE_SHAPE  # here: vpr_jax.data imports this module
-
         h, w = IMAGE_SHAPE
         sizes = [s for s in range(2, h + 1) if h % s == 0 and w % s == 0]
         _check(self.size in sizes, f"patchnorm.size={self.size} does not tile the {h}x{w} "
@@ -365,12 +364,6 @@ class SweepConfig:
         return self.sequence.ds if self.sequence.enabled else (1,)
 
 
-# Keys that may differ between runs sharing a logdir: they add cells or change presentation,
-# or where and in what blocks the same numbers are computed (up to float rounding), never
-# the numbers of a cell already written.
-EXTENDABLE_KEYS = ("preset", "season_pairs", "methods", "removed_pcs", "logdir", "tb",
-                   "matching", "mesh")
-
 _LIST_KEYS = ("methods", "removed_pcs", "data.seasons", "cae.channels", "cae.kernel_sizes",
               "sequence.ds")
 
@@ -414,44 +407,15 @@ def parse_config(argv: list[str]) -> SweepConfig:
 
 
 def to_dict(cfg: SweepConfig) -> dict:
-    return dataclasses.asdict(cfg)
+    """The config as plain YAML data (tuples become lists, as after a YAML round trip)."""
+    return plain(dataclasses.asdict(cfg))
 
 
-def _plain(value: Any) -> Any:
-    """Tuples to lists, recursively: the form a config takes after a YAML round trip."""
+def plain(value: Any) -> Any:
+    """Tuples to lists, recursively: the form a value takes after a YAML or JSON round trip,
+    so a saved config or checkpoint metadata compares equal to the one in memory."""
     if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
+        return {k: plain(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
+        return [plain(v) for v in value]
     return value
-
-
-# train.* keys that say where and how often models are saved, not what is trained.
-TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
-# sequence.* keys that add cells (the ds axis), like removed_pcs; its other keys change them.
-SEQUENCE_AXIS = ("enabled", "ds")
-# Keys added with a default that changed what the suite computes: a saved config without
-# them was computed with the value here (other new keys' defaults reproduce the old runs).
-CHANGED_DEFAULTS = {("fae", "input_centre"): 0.0}
-
-
-def with_old_defaults(saved: dict) -> dict:
-    """A saved config (plain data) with every key of ``CHANGED_DEFAULTS`` it lacks set to
-    the value its runs used."""
-    for (group, key), value in CHANGED_DEFAULTS.items():
-        if isinstance(saved.get(group), dict):
-            saved[group].setdefault(key, value)
-    return saved
-
-
-def identity(cfg: SweepConfig | dict) -> dict:
-    """The part of a config (or of its saved YAML) that determines the numbers of every cell,
-    as plain YAML data."""
-    out = _plain(to_dict(cfg) if isinstance(cfg, SweepConfig) else cfg)
-    out = {k: v for k, v in out.items() if k not in EXTENDABLE_KEYS}
-    out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
-    for key in TRAIN_BOOKKEEPING:
-        out.get("train", {}).pop(key, None)
-    for key in SEQUENCE_AXIS:
-        out.get("sequence", {}).pop(key, None)
-    return out

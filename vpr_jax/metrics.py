@@ -89,7 +89,6 @@ __all__ = [
     "has_true_match",
     "pr_counts",
     "pr_curve",
-    "top_k",
 ]
 
 PRConvention = Literal["vpr_bench", "has_match", "vpr_tutorial"]
@@ -113,15 +112,14 @@ class Evaluation(NamedTuple):
     curve from the strictest threshold to the loosest; index 0 is the start point (recall 0,
     precision 1, threshold +inf), index i > 0 accepts queries with best score >= threshold i.
     ``best_scores``, ``best_correct``, ``has_match``: per query (in input order).
-    ``recall_at_k``: recall@K for every K asked for (always including 1, 5 and 10).
+    ``recall_at_k``: recall@K for every K asked for (always including 1, 5 and 10);
+    ``recall_at_5`` and ``recall_at_10`` read it.
     """
 
     recall_at_1: float
     precision_at_full_recall: float
     auc_pr: float
     recall_at_100_precision: float
-    recall_at_5: float
-    recall_at_10: float
     pr_precision: Float[np.ndarray, " n_points"]
     pr_recall: Float[np.ndarray, " n_points"]
     pr_thresholds: Float[np.ndarray, " n_points"]
@@ -131,12 +129,25 @@ class Evaluation(NamedTuple):
     recall_at_k: dict[int, float]
     pr_convention: str
 
+    @property
+    def recall_at_5(self) -> float:
+        return self.recall_at_k[5]
+
+    @property
+    def recall_at_10(self) -> float:
+        return self.recall_at_k[10]
+
     def scalars(self) -> dict[str, float]:
         """The six scalar metrics, by name (the results.csv columns), as Python floats."""
         return {name: float(getattr(self, name)) for name in SCALAR_NAMES}
 
 
 # ----------------------------------------------------------------------------- validation
+
+
+def _all_ks(ks: tuple[int, ...]) -> list[int]:
+    """The recall@K cut-offs computed: those asked for and always 1, 5 and 10, ascending."""
+    return sorted({*DEFAULT_KS, *(int(k) for k in ks)})
 
 
 def _check_convention(pr_convention: str) -> None:
@@ -356,46 +367,6 @@ def pr_counts(
     return tp, fp, tn, fn
 
 
-# -------------------------------------------------------------------------------- top-K
-
-
-def top_k(
-    similarity: Float[np.ndarray, "nq ndb"], k: int, *, block_rows: int | None = None
-) -> tuple[Float[np.ndarray, "nq k"], Int[np.ndarray, "nq k"]]:
-    """The ``k`` highest similarities per row, best first; ties go to the lowest index.
-
-    ``k`` is clipped to the number of columns. Rows are processed in blocks so the temporary
-    arrays stay near a few million elements whatever the matrix size.
-    """
-    sim = np.asarray(similarity)  # kept in its own dtype: no float64 copy of a big matrix
-    if not (np.issubdtype(sim.dtype, np.floating) or np.issubdtype(sim.dtype, np.integer)):
-        raise ValueError(f"similarity must be a real-valued array, got dtype {sim.dtype}")
-    if np.issubdtype(sim.dtype, np.floating) and np.isnan(sim).any():
-        raise ValueError("similarity contains NaN: the descriptors or similarities are broken")
-    if sim.ndim != 2 or sim.shape[0] == 0 or sim.shape[1] == 0:
-        raise ValueError(f"similarity must be a non-empty 2-D array, got shape {sim.shape}")
-    if k < 1:
-        raise ValueError(f"k must be >= 1, got {k}")
-    nq, ndb = sim.shape
-    k = min(int(k), ndb)
-    if block_rows is None:
-        block_rows = max(1, 4_000_000 // ndb)
-    out_s = np.empty((nq, k), dtype=np.float64)
-    out_i = np.empty((nq, k), dtype=np.int64)
-    for start in range(0, nq, block_rows):
-        blk = sim[start : start + block_rows]
-        kth = np.partition(blk, ndb - k, axis=1)[:, ndb - k]  # k-th largest per row
-        rows, cols = np.nonzero(blk >= kth[:, None])  # >= k candidates per row, ties kept
-        vals = blk[rows, cols].astype(np.float64)  # exact for float32/float64 scores
-        order = np.lexsort((cols, -vals, rows))  # by row, then score desc, then index asc
-        rows, cols, vals = rows[order], cols[order], vals[order]
-        first = np.searchsorted(rows, np.arange(blk.shape[0]), side="left")
-        take = first[:, None] + np.arange(k)[None, :]
-        out_s[start : start + blk.shape[0]] = vals[take]
-        out_i[start : start + blk.shape[0]] = cols[take]
-    return out_s, out_i
-
-
 # ---------------------------------------------------------------------------- evaluation
 
 
@@ -438,7 +409,7 @@ def evaluate_top_k(
         raise ValueError("top_scores rows must be sorted best first (non-increasing)")
     n_cols = scores.shape[1]
     n_db = d.shape[0]
-    all_ks = sorted({1, 5, 10, *(int(k) for k in ks)})
+    all_ks = _all_ks(ks)
     if all_ks[0] < 1:
         raise ValueError(f"every K in ks must be >= 1, got {tuple(ks)}")
     need = min(all_ks[-1], n_db)
@@ -474,8 +445,6 @@ def evaluate_top_k(
         precision_at_full_recall=precision_at_full_recall,
         auc_pr=auc_pr,
         recall_at_100_precision=recall_at_100p,
-        recall_at_5=recall_at_k[5],
-        recall_at_10=recall_at_k[10],
         pr_precision=precision,
         pr_recall=recall,
         pr_thresholds=thresholds,
@@ -487,21 +456,15 @@ def evaluate_top_k(
     )
 
 
-def evaluate(
-    similarity: Float[np.ndarray, "nq ndb"],
-    query_ids: Int[np.ndarray, " nq"],
-    db_ids: Int[np.ndarray, " ndb"],
-    tolerance: int,
-    *,
-    pr_convention: PRConvention = "vpr_bench",
-    ks: tuple[int, ...] = DEFAULT_KS,
-) -> Evaluation:
-    """All metrics from a full similarity matrix, higher = more similar.
+def evaluate(similarity: Float[np.ndarray, "nq ndb"], query_ids: Int[np.ndarray, " nq"],
+             db_ids: Int[np.ndarray, " ndb"], tolerance: int, **options) -> Evaluation:
+    """All metrics from a full similarity matrix, higher = more similar; ``options``
+    (``pr_convention``, ``ks``) as for :func:`evaluate_top_k`, which this calls.
 
     ``similarity`` is (n_queries, n_db): row i holds query i against every database frame.
-    This is the TRANSPOSE of VPR_Tutorial's ``S`` (database x queries). Takes the top
-    ``max(ks + (10,))`` per query (ties to the lowest database index, as ``np.argmax`` picks the
-    best match) and calls :func:`evaluate_top_k`.
+    This is the TRANSPOSE of VPR_Tutorial's ``S`` (database x queries). Sorts each row (a
+    stable sort: ties go to the lowest database index, as ``np.argmax`` picks the best
+    match) and keeps the top ``max(ks + (10,))``.
     """
     sim = np.asarray(similarity)
     n_q = np.shape(query_ids)[0] if np.ndim(query_ids) == 1 else -1
@@ -511,8 +474,10 @@ def evaluate(
             f"similarity must have shape (n_queries, n_db) = ({n_q}, {n_db}), got {sim.shape}"
             " (rows are queries: the transpose of VPR_Tutorial's S)"
         )
-    k = max({1, 5, 10, *(int(k) for k in ks)})
-    top_s, top_i = top_k(sim, k)
-    return evaluate_top_k(
-        top_s, top_i, query_ids, db_ids, tolerance, pr_convention=pr_convention, ks=ks
-    )
+    if np.issubdtype(sim.dtype, np.floating) and np.isnan(sim).any():
+        raise ValueError("similarity contains NaN: the descriptors or similarities are broken")
+    # float64 is exact for float32 and integer scores, and negates unsigned ones correctly
+    k = _all_ks(options.get("ks", DEFAULT_KS))[-1]
+    top_i = np.argsort(-sim.astype(np.float64), axis=1, kind="stable")[:, :k]
+    return evaluate_top_k(np.take_along_axis(sim, top_i, axis=1), top_i, query_ids, db_ids,
+                          tolerance, **options)

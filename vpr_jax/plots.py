@@ -14,29 +14,29 @@ matplotlib.use("Agg")  # files only; no display on clusters or CI
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vpr_jax.results import best_rows  # noqa: E402
+from vpr_jax.results import ResultRow, best_rows  # noqa: E402
 
 
-def _label(row: dict) -> str:
-    return f"{row['method']} (k={row['removed_pcs']})" if row["method"] == "pca" \
-        else row["method"]
+def _label(row: ResultRow) -> str:
+    return f"{row.method} (k={row.removed_pcs})" if row.method == "pca" \
+        else row.method
 
 
-def _shortest_sequences(rows: list[dict]) -> list[dict]:
-    shortest = min(r["ds"] for r in rows)
-    return [r for r in rows if r["ds"] == shortest]
+def _shortest_sequences(rows: list[ResultRow]) -> list[ResultRow]:
+    shortest = min(r.ds for r in rows)
+    return [r for r in rows if r.ds == shortest]
 
 
-def pr_curves_figure(rows: list[dict], load_curve: Callable[[dict], tuple], path: Path):
+def pr_curves_figure(rows: list[ResultRow], load_curve: Callable[[ResultRow], tuple], path: Path):
     """One panel per season pair, one line per method (PCA at its best removed-PC count)."""
     best = best_rows(_shortest_sequences(rows))
-    pairs = list(dict.fromkeys(r["season_pair"] for r in rows))  # sweep order
+    pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
-        for row in sorted((r for r in best if r["season_pair"] == pair),
-                          key=lambda r: r["method"]):
+        for row in sorted((r for r in best if r.season_pair == pair),
+                          key=lambda r: r.method):
             precision, recall = load_curve(row)
-            ax.plot(recall, precision, label=f"{_label(row)}  AUC {row['auc_pr']:.2f}")
+            ax.plot(recall, precision, label=f"{_label(row)}  AUC {row.auc_pr:.2f}")
         ax.set(title=pair, xlabel="recall", ylabel="precision", xlim=(0, 1.01), ylim=(0, 1.02))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower left")
@@ -45,17 +45,17 @@ def pr_curves_figure(rows: list[dict], load_curve: Callable[[dict], tuple], path
     plt.close(fig)
 
 
-def correct_matches_figure(rows: list[dict], path: Path):
+def correct_matches_figure(rows: list[ResultRow], path: Path):
     """Grouped bars: fraction of correct matches (recall@1) per pair and method."""
     best = best_rows(_shortest_sequences(rows))
-    pairs = list(dict.fromkeys(r["season_pair"] for r in rows))  # sweep order
-    methods = list(dict.fromkeys(r["method"] for r in rows))
+    pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
+    methods = list(dict.fromkeys(r.method for r in rows))
     width = 0.8 / len(methods)
     fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(pairs), 3.8))
     for m, method in enumerate(methods):
-        by_pair = {r["season_pair"]: r for r in best if r["method"] == method}
+        by_pair = {r.season_pair: r for r in best if r.method == method}
         x = np.arange(len(pairs)) + (m - (len(methods) - 1) / 2) * width
-        heights = [by_pair[p]["recall_at_1"] if p in by_pair else np.nan for p in pairs]
+        heights = [by_pair[p].recall_at_1 if p in by_pair else np.nan for p in pairs]
         bars = ax.bar(x, heights, width, label=method)
         ax.bar_label(bars, fmt="%.2f", fontsize=7)
     ax.set_xticks(np.arange(len(pairs)), pairs)
@@ -66,21 +66,21 @@ def correct_matches_figure(rows: list[dict], path: Path):
     plt.close(fig)
 
 
-def recall_vs_ds_figure(rows: list[dict], path: Path):
+def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
     """One panel per season pair: recall@1 against the sequence length ds, a line per method
     (PCA and ICA at their best removed-PC count for each ds, as in results.md)."""
     best = best_rows(rows)
-    pairs = list(dict.fromkeys(r["season_pair"] for r in rows))  # sweep order
-    methods = list(dict.fromkeys(r["method"] for r in rows))
+    pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
+    methods = list(dict.fromkeys(r.method for r in rows))
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
         for method in methods:
-            points = sorted((r["ds"], r["recall_at_1"]) for r in best
-                            if r["season_pair"] == pair and r["method"] == method)
+            points = sorted((r.ds, r.recall_at_1) for r in best
+                            if r.season_pair == pair and r.method == method)
             if points:
                 ax.plot(*zip(*points, strict=True), marker="o", label=method)
         ax.set(title=pair, xlabel="sequence length ds (frames)", ylabel="recall@1",
-               ylim=(0, 1.02), xticks=sorted({r["ds"] for r in rows}))
+               ylim=(0, 1.02), xticks=sorted({r.ds for r in rows}))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()

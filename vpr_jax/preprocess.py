@@ -22,11 +22,10 @@ season changes the float32 result by at most a rounding step.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
 from vpr_jax.data.route import Route
+from vpr_jax.progress import Log
 
 _FLAT = 1e-6
 Z_SPAN = 3.0  # z-scores from -Z_SPAN to Z_SPAN fill [0, 1]
@@ -58,7 +57,7 @@ def patch_normalize(images: np.ndarray, size: int = 8, rounded: bool = False) ->
 
 
 def preprocess_route(
-    route: Route, preprocess: str, size: int, rounded: bool, log: Callable[[str], None] = print
+    route: Route, preprocess: str, size: int, rounded: bool, log: Log = print
 ) -> Route:
     """The route every method sees: as loaded (``none``) or patch-normalised."""
     if preprocess == "none":

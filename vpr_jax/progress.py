@@ -1,16 +1,40 @@
-"""Progress for long loops: a rich bar on a terminal, nothing in between off one.
+"""Progress for long work: the run log (a line per finished unit of work) and rich bars.
 
-Off a terminal (CI, ``nohup``, a log file) a bar only adds noise, so callers also log one
-plain line per finished unit of work themselves.
+A bar is drawn on a terminal only; off one (CI, ``nohup``, a log file) it would only add
+noise, so callers also log one plain line per finished unit of work themselves.
 """
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import TypeVar
 
 T = TypeVar("T")
+Log = Callable[[str], None]  # where a reader or a loop reports: print, or a RunLog
+
+
+class RunLog:
+    """Prints every line and, once :meth:`open` names the run's log file, appends it there
+    too (lines printed before that are written first, so the file holds the whole run)."""
+
+    def __init__(self):
+        self._lines: list[str] = []
+        self._path: Path | None = None
+
+    def open(self, path: Path) -> None:
+        self._path = path
+        with open(path, "a") as f:
+            f.writelines(line + "\n" for line in self._lines)
+
+    def __call__(self, line: str) -> None:
+        print(line, flush=True)
+        if self._path is None:
+            self._lines.append(line)
+        else:
+            with open(self._path, "a") as f:
+                f.write(line + "\n")
 
 
 def interactive() -> bool:

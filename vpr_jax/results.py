@@ -7,18 +7,34 @@ import io
 import os
 import tempfile
 from pathlib import Path
+from typing import NamedTuple
 
-COLUMNS = (
-    "season_pair", "db_season", "query_season", "method", "removed_pcs", "ds", "n_train",
-    "n_test", "tolerance", "recall_at_1", "precision_at_full_recall", "auc_pr",
-    "recall_at_100_precision", "recall_at_5", "recall_at_10", "fit_seconds",
-    "encode_ms_per_image", "n_iter", "converged", "seed", "run",
-)
-INT_COLUMNS = {"removed_pcs", "ds", "n_train", "n_test", "tolerance", "n_iter", "converged",
-               "seed"}
+from vpr_jax.metrics import SCALAR_NAMES
+
+# The columns of results.csv, in order, with their types: one row per finished cell.
+ResultRow = NamedTuple("ResultRow", [
+    ("season_pair", str),  # db-query, e.g. summer-fall
+    ("db_season", str),
+    ("query_season", str),
+    ("method", str),
+    ("removed_pcs", int),  # 0 for methods without the removed-PC axis
+    ("ds", int),  # sequence length; 1 = single images
+    ("n_train", int),  # images the encoder was fitted on, both seasons
+    ("n_test", int),  # queries
+    ("tolerance", int),
+    *((name, float) for name in SCALAR_NAMES),  # the six metrics (vpr_jax.metrics)
+    ("fit_seconds", float),
+    ("encode_ms_per_image", float),
+    ("n_iter", int),  # iterations of an iterative fit (epochs for the auto-encoders)
+    ("converged", int),  # 0 when the fit stopped at its iteration limit
+    ("seed", int),
+    ("run", str),  # the cell's TensorBoard run, relative to the logdir
+])
+COLUMNS: tuple[str, ...] = ResultRow._fields
+COLUMN_TYPES: dict[str, type] = ResultRow.__annotations__
+TIMING_NAMES = ("fit_seconds", "encode_ms_per_image")
 # Columns added since the first tables were written, with the value those tables meant.
 ADDED_COLUMNS = {"ds": "1"}  # sequence length: 1 is single-image matching
-TEXT_COLUMNS = {"season_pair", "db_season", "query_season", "method", "run"}
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -36,20 +52,18 @@ def atomic_write_text(path: Path, text: str) -> None:
         raise
 
 
-def cell_key(row: dict) -> tuple[str, str, int, int]:
-    return row["season_pair"], row["method"], int(row["removed_pcs"]), int(row["ds"])
+def cell_key(row: ResultRow) -> tuple[str, str, int, int]:
+    """What identifies a cell: a resumed sweep skips the cells whose key is in the table."""
+    return row.season_pair, row.method, row.removed_pcs, row.ds
 
 
-def _parse(row: dict) -> dict:
-    out = {}
-    for col in COLUMNS:
-        value = row[col] if col in row else ADDED_COLUMNS[col]
-        out[col] = value if col in TEXT_COLUMNS else int(value) if col in INT_COLUMNS \
-            else float(value)
-    return out
+def _parse(row: dict) -> ResultRow:
+    """A csv row of text (or a row of values) as a typed ResultRow."""
+    return ResultRow(*(COLUMN_TYPES[col](row[col] if col in row else ADDED_COLUMNS[col])
+                       for col in COLUMNS))  # fmt: skip
 
 
-def read_results(path: Path) -> list[dict]:
+def read_results(path: Path) -> list[ResultRow]:
     """Rows of an existing results.csv (typed), or [] when there is none.
 
     Raises ValueError naming the first problem when the file is not such a table.
@@ -74,44 +88,44 @@ def read_results(path: Path) -> list[dict]:
             raise ValueError(str(err)) from None
 
 
-def append_results(path: Path, new_rows: list[dict]) -> list[dict]:
+def append_results(path: Path, new_rows: list[ResultRow]) -> list[ResultRow]:
     """Add rows to results.csv in one atomic rewrite; a crash leaves the old file whole."""
-    rows = read_results(path) + [_parse({c: r[c] for c in COLUMNS}) for r in new_rows]
+    rows = read_results(path) + [_parse(r._asdict()) for r in new_rows]
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
-    writer.writeheader()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(COLUMNS)
     writer.writerows(rows)
     atomic_write_text(path, buf.getvalue())
     return rows
 
 
-def best_rows(rows: list[dict], metric: str = "recall_at_1") -> list[dict]:
+def best_rows(rows: list[ResultRow], metric: str = "recall_at_1") -> list[ResultRow]:
     """Per (pair, method, ds), the row with the best metric (smallest removed_pcs on ties)."""
-    best: dict[tuple[str, str, int], dict] = {}
-    for row in sorted(rows, key=lambda r: r["removed_pcs"]):
-        key = (row["season_pair"], row["method"], row["ds"])
-        if key not in best or row[metric] > best[key][metric]:
+    best: dict[tuple[str, str, int], ResultRow] = {}
+    for row in sorted(rows, key=lambda r: r.removed_pcs):
+        key = (row.season_pair, row.method, row.ds)
+        if key not in best or getattr(row, metric) > getattr(best[key], metric):
             best[key] = row
     return list(best.values())
 
 
-def markdown_table(rows: list[dict]) -> str:
+def markdown_table(rows: list[ResultRow]) -> str:
     """results.md: the best removed-PC count per method (and sequence length), then every
     cell. The ds column appears once a sweep holds sequence-matching cells."""
-    sequences = any(r["ds"] != 1 for r in rows)
+    sequences = any(r.ds != 1 for r in rows)
     cols = ("season_pair", "method", "removed_pcs", *(("ds",) if sequences else ()),
             "recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_5", "recall_at_10",
             "fit_seconds", "encode_ms_per_image")
 
-    def table(rs: list[dict]) -> list[str]:
+    def table(rs: list[ResultRow]) -> list[str]:
         lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-        for r in sorted(rs, key=lambda r: (r["season_pair"], r["method"], r["removed_pcs"],
-                                           r["ds"])):
-            cells = [f"{r[c]:.3f}" if isinstance(r[c], float) else str(r[c]) for c in cols]
+        for r in sorted(rs, key=lambda r: (r.season_pair, r.method, r.removed_pcs, r.ds)):
+            values = [getattr(r, c) for c in cols]
+            cells = [f"{v:.3f}" if isinstance(v, float) else str(v) for v in values]
             lines.append("| " + " | ".join(cells) + " |")
         return lines
 
-    first = rows[0] if rows else {}
+    first = rows[0]._asdict() if rows else {}
     lines = [
         "# Results",
         "",
@@ -128,9 +142,9 @@ def markdown_table(rows: list[dict]) -> str:
         *table(rows),
         "",
     ]
-    stuck = [r for r in rows if not r["converged"]]
+    stuck = [r for r in rows if not r.converged]
     if stuck:
-        cells = ", ".join(f"{r['season_pair']} {r['method']} k={r['removed_pcs']}" for r in stuck)
+        cells = ", ".join(f"{r.season_pair} {r.method} k={r.removed_pcs}" for r in stuck)
         lines += [
             f"Not converged (stopped at the iteration limit, see sweep.log): {cells}.",
             "",

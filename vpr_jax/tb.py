@@ -15,7 +15,7 @@ from tensorboard.plugins.hparams import summary_v2 as hp
 from tensorboardX import SummaryWriter
 from tensorboardX.proto.summary_pb2 import Summary
 
-from vpr_jax.metrics import pr_counts
+from vpr_jax.metrics import Evaluation, pr_counts
 
 
 def _to_tbx(summary_pb) -> Summary:
@@ -64,31 +64,33 @@ def match_examples(query, db, query_ids, db_ids, best_indices, n: int) -> np.nda
 
 def write_cell_run(
     run_dir: Path,
+    evaluation: Evaluation,
     *,
     scalars: dict[str, float],
     hparams: dict,
     trial_id: str,
-    best_scores: np.ndarray,
-    best_correct: np.ndarray,
-    has_match: np.ndarray,
     n_thresholds: int,
-    pr_convention: str,
     examples: np.ndarray,
     basis_images: np.ndarray | None,
     basis_tag: str = "basis/removed_components",
 ) -> None:
-    """Everything TensorBoard shows for one cell, at step 0.
+    """Everything TensorBoard shows for one cell, at step 0: the evaluation's metrics as
+    ``metrics/<name>``, the other ``scalars`` under their own tags, its PR curve, images and
+    hparams.
 
-    The PR curve uses thresholds linspace(0, 1) on (cosine + 1) / 2; its counts follow
-    ``pr_convention`` (see vpr_jax.metrics), so TensorBoard's recall is the sweep's recall.
+    The PR curve uses thresholds linspace(0, 1) on (cosine + 1) / 2; its counts follow the
+    evaluation's ``pr_convention`` (see vpr_jax.metrics), so TensorBoard's recall is the
+    sweep's recall.
     """
+    ev = evaluation
     thresholds = np.linspace(0.0, 1.0, n_thresholds)
-    tp, fp, tn, fn = pr_counts((best_scores + 1.0) / 2.0, best_correct, has_match, thresholds,
-                               pr_convention=pr_convention)
+    tp, fp, tn, fn = pr_counts((ev.best_scores + 1.0) / 2.0, ev.best_correct, ev.has_match,
+                               thresholds, pr_convention=ev.pr_convention)  # fmt: skip
     precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
     recall = tp / np.maximum(tp + fn, 1)
+    tagged = {**{f"metrics/{k}": v for k, v in ev.scalars().items()}, **scalars}
     with SummaryWriter(str(run_dir)) as writer:
-        for tag, value in scalars.items():
+        for tag, value in tagged.items():
             writer.add_scalar(tag, float(value), global_step=0)
         writer.add_pr_curve_raw("pr_curve", tp, fp, tn, fn, precision, recall,
                                 global_step=0, num_thresholds=n_thresholds)

@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 from vpr_jax.config import DataConfig
 from vpr_jax.data.route import IMAGE_SHAPE, SEASON_ORDER, Route
 from vpr_jax.data.screen import screen_route
+from vpr_jax.progress import Log
 
 __all__ = ["IMAGE_SHAPE", "SEASON_ORDER", "Route", "load_route"]
 
 
-def load_route(cfg: DataConfig, seed: int, log: Callable[[str], None] = print) -> Route:
+def load_route(cfg: DataConfig, seed: int, log: Log = print) -> Route:
     """Read (or render) every configured season, then screen it for constant frames
     (reported; dropped with ``data.drop_constant_frames``). Raises UserError on bad data."""
     if cfg.source == "synthetic":

@@ -12,8 +12,10 @@ Sources (``load_nordland(source, ...)``):
 - ``folders``: ``ROOT/<season>/*.png|jpg|jpeg`` of any size, id = last integer of the name,
   converted to grayscale and resized with area interpolation.
 
-Mistakes a user can fix raise :class:`~vpr_jax.errors.UserError` with one line naming the
-problem and the fix.
+Every reader takes the keywords ``frame_list`` (a file of frame names or ranges to keep),
+``frame_step`` (keep every step-th frame after that) and ``log`` (where notes go). Mistakes a
+user can fix raise :class:`~vpr_jax.errors.UserError` with one line naming the problem and
+the fix.
 """
 
 from __future__ import annotations
@@ -36,9 +38,8 @@ import numpy as np
 from vpr_jax.data.frames import frame_id_from_name, parse_frame_list
 from vpr_jax.data.route import IMAGE_SHAPE, Route
 from vpr_jax.errors import UserError
-from vpr_jax.progress import interactive, track
+from vpr_jax.progress import Log, interactive, track
 
-Log = Callable[[str], None]
 PathLike = str | os.PathLike
 
 SOURCES = ("nordland_images", "nordland_videos", "folders")
@@ -59,40 +60,62 @@ LOG_EVERY_VIDEO_S = 3600  # a plain progress line per hour of video when not on 
 # public readers
 
 
-def load_nordland(
-    source: str,
-    root: PathLike,
-    seasons: Sequence[str],
-    *,
-    cache_dir: PathLike | None,
-    frame_list: PathLike | None = None,
-    frame_step: int = 1,
-    log: Log = print,
-) -> Route:
-    """Read ``seasons`` of the route under ``root`` from ``source`` (one of :data:`SOURCES`)."""
-    if source == "nordland_images":
-        return read_image_release(
-            root, seasons, frame_list=frame_list, frame_step=frame_step, log=log
-        )
+def load_nordland(source: str, root: PathLike, seasons: Sequence[str], *,
+                  cache_dir: PathLike | None, **options) -> Route:
+    """Read ``seasons`` of the route under ``root`` from ``source`` (one of :data:`SOURCES`);
+    ``options`` (``frame_list``, ``frame_step``, ``log``) as for every reader, ``cache_dir``
+    for videos only."""
+    if source not in SOURCES:
+        raise UserError(f"unknown data source {source!r}: set data.source to one of "
+                        f"{', '.join(SOURCES)}")
     if source == "nordland_videos":
-        return read_videos(
-            root,
-            seasons,
-            cache_dir=cache_dir,
-            frame_list=frame_list,
-            frame_step=frame_step,
-            log=log,
-        )
-    if source == "folders":
-        return read_folders(root, seasons, frame_list=frame_list, frame_step=frame_step, log=log)
-    raise UserError(
-        f"unknown data source {source!r}: set data.source to one of {', '.join(SOURCES)}"
-    )
+        return read_videos(root, seasons, cache_dir=cache_dir, **options)
+    reader = read_image_release if source == "nordland_images" else read_folders
+    return reader(root, seasons, **options)
 
 
-def _read_aligned(files: dict, source: str, root, frame_list, frame_step: int, log: Log, *,
-                  resize: bool) -> Route:
-    """Align seasons' indexed files ({season: {frame id: path}}), then read only the kept."""
+def read_image_release(root: PathLike, seasons: Sequence[str], **options) -> Route:
+    """Nordland's 64x32 grayscale release: ``ROOT/<season>/images-%05d.png``; ``options``
+    as for every reader (``frame_list``, ``frame_step``, ``log``: see the module docstring).
+
+    Frame ids come from the file names (0-based ``images-00000.png`` is kept as id 0). Images
+    must be exactly 64 wide and 32 high; colour PNGs are converted to grayscale.
+    """
+    return _read_image_folders(
+        "nordland_images", root, seasons, match=_release_id, resize=False,
+        empty_hint="the 64x32 release names them images-00001.png ...; for other names or "
+                   "sizes set data.source=folders", **options,
+    )  # fmt: skip
+
+
+def read_folders(root: PathLike, seasons: Sequence[str], **options) -> Route:
+    """Any ``ROOT/<season>/*.png|jpg|jpeg`` folders of aligned frames, of any size;
+    ``options`` as for every reader.
+
+    Frame id = the last integer in each file name (``frame_2.png`` -> 2, ordered numerically).
+    Images are converted to grayscale and resized to 64x32 with area interpolation.
+    """
+    return _read_image_folders(
+        "folders", root, seasons, match=_folder_id, resize=True,
+        empty_hint="put the frames there as .png, .jpg or .jpeg files numbered in their names",
+        **options,
+    )  # fmt: skip
+
+
+def _read_image_folders(source: str, root: PathLike, seasons: Sequence[str], *,
+                        match: Callable[[Path, str], int | None], empty_hint: str, resize: bool,
+                        frame_list: PathLike | None = None, frame_step: int = 1,
+                        log: Log = print) -> Route:
+    """Index every season folder ({frame id: path}, names ``match`` maps to ids), align the
+    seasons, then read only the frames kept."""
+    seasons = _check_seasons(seasons)
+    _check_step(frame_step)
+    root = _check_root(root, "the folder holding " + _folders_hint(seasons))
+    files = {}
+    for season in seasons:
+        folder = _season_dir(root, season, seasons)
+        files[season] = _index_files(folder, season, match=partial(match, folder),
+                                     empty_hint=empty_hint)  # fmt: skip
     ids = _align(
         {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()}, frame_list, frame_step, log
     )
@@ -101,68 +124,8 @@ def _read_aligned(files: dict, source: str, root, frame_list, frame_step: int, l
         paths = [by_id[int(i)] for i in ids]
         images[season], colour[season] = _read_images(paths, season, resize=resize)
     _note_colour(colour, log)
-    log(_summary(source, ids, tuple(files), root))
+    log(_summary(source, ids, seasons, root))
     return Route(ids, images)
-
-
-def read_image_release(
-    root: PathLike,
-    seasons: Sequence[str],
-    *,
-    frame_list: PathLike | None = None,
-    frame_step: int = 1,
-    log: Log = print,
-) -> Route:
-    """Nordland's 64x32 grayscale release: ``ROOT/<season>/images-%05d.png``.
-
-    Frame ids come from the file names (0-based ``images-00000.png`` is kept as id 0). Images
-    must be exactly 64 wide and 32 high; colour PNGs are converted to grayscale.
-    """
-    seasons = _check_seasons(seasons)
-    _check_step(frame_step)
-    root = _check_root(root, "the folder holding " + _folders_hint(seasons))
-    files = {}
-    for season in seasons:
-        folder = _season_dir(root, season, seasons)
-        files[season] = _index_files(
-            folder,
-            season,
-            match=_release_id,
-            empty_hint=(
-                "the 64x32 release names them images-00001.png ...; for other names or sizes "
-                "set data.source=folders"
-            ),
-        )
-    return _read_aligned(files, "nordland_images", root, frame_list, frame_step, log,
-                         resize=False)
-
-
-def read_folders(
-    root: PathLike,
-    seasons: Sequence[str],
-    *,
-    frame_list: PathLike | None = None,
-    frame_step: int = 1,
-    log: Log = print,
-) -> Route:
-    """Any ``ROOT/<season>/*.png|jpg|jpeg`` folders of aligned frames, of any size.
-
-    Frame id = the last integer in each file name (``frame_2.png`` -> 2, ordered numerically).
-    Images are converted to grayscale and resized to 64x32 with area interpolation.
-    """
-    seasons = _check_seasons(seasons)
-    _check_step(frame_step)
-    root = _check_root(root, "the folder holding " + _folders_hint(seasons))
-    files = {}
-    for season in seasons:
-        folder = _season_dir(root, season, seasons)
-        files[season] = _index_files(
-            folder,
-            season,
-            match=partial(_folder_id, folder),
-            empty_hint="put the frames there as .png, .jpg or .jpeg files numbered in their names",
-        )
-    return _read_aligned(files, "folders", root, frame_list, frame_step, log, resize=True)
 
 
 def read_videos(
@@ -261,7 +224,7 @@ def _season_dir(root: Path, season: str, seasons: Sequence[str]) -> Path:
     )
 
 
-def _release_id(name: str) -> int | None:
+def _release_id(folder: Path, name: str) -> int | None:
     m = RELEASE_NAME.match(name)
     return int(m.group(1)) if m else None
 

@@ -6,7 +6,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-IMAGE_SHAPE = (32, 64)  # (height, width): Nordland's 64x32 release, grayscale
+from vpr_jax.shapes import IMAGE_SHAPE
+
+__all__ = ["IMAGE_SHAPE", "SEASON_ORDER", "Route"]
 
 # Database-first order: for an unordered pair, the season earlier in this list is the
 # database (the robot's memory) and the later one the queries. It reproduces the seed's

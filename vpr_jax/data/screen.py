@@ -11,12 +11,11 @@ reported: they are real places, matched and scored by frame number like any othe
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
 from vpr_jax.data.route import Route
 from vpr_jax.errors import UserError
+from vpr_jax.progress import Log
 
 # Mean absolute difference (in [0, 1] grey) below which a frame repeats the one before:
 # under half a grey level, i.e. the same image up to compression noise.
@@ -47,7 +46,7 @@ def _counts(masks: dict[str, np.ndarray]) -> str:
 
 
 def screen_route(
-    route: Route, *, max_std: float, drop: bool, log: Callable[[str], None] = print
+    route: Route, *, max_std: float, drop: bool, log: Log = print
 ) -> Route:
     """Report constant and repeated frames; with ``drop``, remove the places where any season
     shows a constant frame. Returns the route unchanged when nothing is dropped."""

@@ -36,8 +36,7 @@ from flax import nnx
 from jaxtyping import Array, Float
 
 from vpr_jax.encoders.conv import conv_general_dilated
-
-IMAGE_SHAPE = (32, 64)
+from vpr_jax.shapes import IMAGE_SHAPE
 
 
 class FAESpec(NamedTuple):
@@ -126,6 +125,25 @@ class CAE(nnx.Module):
 
 
 Spec = FAESpec | CAESpec
+
+
+def spec_to_json(spec: Spec) -> dict:
+    """A spec as JSON data, as checkpoints store it: ``{"kind": "CAESpec", "channels":
+    [64, 128], ...}``."""
+    fields = {k: list(v) if isinstance(v, tuple) else v for k, v in spec._asdict().items()}
+    return {"kind": type(spec).__name__, **fields}
+
+
+def spec_from_json(data: dict) -> Spec:
+    """The spec ``spec_to_json`` wrote, also from checkpoints older than a field (an FAE
+    saved before it centred its input has no ``centre``: it was the seed's plain layer)."""
+    fields = dict(data)
+    kind = fields.pop("kind", None)
+    if kind == "FAESpec":
+        return FAESpec(**{"centre": 0.0, **fields})
+    if kind == "CAESpec":
+        return CAESpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+    raise ValueError(f"unknown auto-encoder kind {kind!r}: expected FAESpec or CAESpec")
 
 
 def _module(spec: Spec, key: jax.Array, image_shape: tuple[int, int]) -> FAE | CAE:

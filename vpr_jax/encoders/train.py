@@ -4,10 +4,13 @@
 batch (Table 2 of the seed: horizontal flip, width and height shift 0.2), reconstructs it
 and takes one optimizer step on the mean squared error.
 
-``fit_autoencoder`` runs epochs over a shuffled training set, scores a held-out validation
-set after each, keeps the best parameters, and stops after ``patience`` epochs without
-improvement. Every random draw comes from ``(key, epoch, step)``, so a run resumed from an
-epoch's checkpoint continues exactly as the uninterrupted run would have.
+``fit_autoencoder`` is a short loop over named steps on one ``TrainState``:
+``init_or_restore`` (a fresh state, or the checkpoint's), then per epoch ``train_epoch``
+(a shuffled pass over the training set), ``evaluate`` (the validation loss) and
+``end_epoch`` (keep the best parameters; stop after ``patience`` epochs without
+improvement), and a checkpoint when one is due. Every random draw comes from
+``(key, epoch, step)``, so a run resumed from an epoch's checkpoint continues exactly as the
+uninterrupted run would have.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -29,7 +32,7 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float
 
 from vpr_jax import checkpoints, sharding
-from vpr_jax.config import TrainConfig
+from vpr_jax.config import TrainConfig, plain
 from vpr_jax.data.augment import AugmentConfig, augment_batch
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.errors import UserError
@@ -37,6 +40,19 @@ from vpr_jax.progress import Bar
 from vpr_jax.sharding import AXIS
 
 OPTIMIZERS = {"adam": optax.adam, "adamw": optax.adamw, "sgd": optax.sgd}  # config's names
+
+
+class TrainState(NamedTuple):
+    """Everything training needs to go on, saved as one checkpoint item per saved epoch."""
+
+    params: dict  # the current parameters
+    opt_state: Any  # the optimizer's state (optax)
+    best_params: dict  # the parameters of the best validation epoch so far
+    best_val: float  # their validation loss (inf before the first epoch)
+    bad_epochs: int  # epochs since the best one: early stopping's counter
+    epoch: int  # epochs finished
+    step: int  # optimizer steps taken
+    seconds: float  # training time, summed over every session so far
 
 
 class TrainResult(NamedTuple):
@@ -161,18 +177,134 @@ def split_validation(
     return train, val
 
 
-def _json(value):
-    """A value as it comes back from JSON (tuples become lists)."""
-    if isinstance(value, dict):
-        return {k: _json(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json(v) for v in value]
-    return value
 
 
 def _examples(images: np.ndarray, n: int) -> np.ndarray:
     picks = np.linspace(0, len(images) - 1, min(n, len(images))).round().astype(int)
     return images[picks]
+
+
+class Trainer(NamedTuple):
+    """One model's compiled steps and the settings it trains with."""
+
+    graphdef: Any  # the architecture: ae.make_encode(graphdef)(params, images)
+    train_step: Callable  # (params, opt_state, batch, key) -> (params, opt_state, metrics)
+    eval_loss: Callable  # (params, images) -> mean reconstruction loss
+    reconstruct: Callable  # (params, images) -> images
+    settings: TrainConfig
+    batch_size: int
+    steps_per_epoch: int  # the tail that fills no batch is dropped: one compiled shape
+
+
+def make_trainer(
+    spec: ae.Spec, image_shape: tuple[int, int], n_train: int, key: jax.Array,
+    settings: TrainConfig, mesh: Mesh | None = None,
+) -> tuple[Trainer, TrainState]:
+    """The model's compiled steps and its initial state (weights drawn from ``key``)."""
+    graphdef, params = ae.build(spec, jax.random.fold_in(key, 0), image_shape)
+    tx = make_optimizer(settings)
+    batch_size = min(settings.batch_size, n_train)
+    augment = AugmentConfig() if settings.augment else None
+    trainer = Trainer(graphdef, make_train_step(graphdef, tx, augment, mesh),
+                      make_eval_loss(graphdef, batch_size), ae.make_reconstruct(graphdef),
+                      settings, batch_size, n_train // batch_size)  # fmt: skip
+    return trainer, TrainState(params, tx.init(params), params, math.inf, 0, 0, 0, 0.0)
+
+
+def checkpoint_meta(spec: ae.Spec, image_shape: tuple[int, int], identity: dict | None) -> dict:
+    """What a checkpoint must hold to be reused: the same model, image shape and identity."""
+    return {"spec": ae.spec_to_json(spec), "image_shape": list(image_shape),
+            "identity": plain(identity or {})}  # fmt: skip
+
+
+def init_or_restore(
+    fresh: TrainState, checkpoint_dir: Path | None, meta: dict, log: TrainingLog | None,
+    name: str,
+) -> tuple[TrainState, dict | None]:
+    """The checkpoint's newest state and its metadata (``done`` says whether training
+    finished), or ``fresh`` and None when there is none. A checkpoint of another model, data
+    or settings (``meta`` differs) is refused."""
+    if checkpoint_dir is None or not checkpoints.has_checkpoint(checkpoint_dir):
+        return fresh, None
+    saved = checkpoints.read_meta(checkpoint_dir)
+    if any(saved.get(k) != v for k, v in meta.items()):
+        raise UserError(f"{checkpoint_dir} holds a model trained on other data or settings: "
+                        "delete that folder, or set train.checkpoint_dir=PATH to keep both")
+    state, saved = checkpoints.restore(checkpoint_dir, fresh)
+    if log is not None:
+        log.line(f"{name}: restored the trained model from {checkpoint_dir}" if saved["done"]
+                 else f"{name}: resuming after epoch {state.epoch} (step {state.step})")
+    return state, saved
+
+
+def train_epoch(
+    trainer: Trainer, state: TrainState, train_dev: Array, key: jax.Array,
+    log: TrainingLog | None, name: str,
+) -> tuple[TrainState, np.ndarray]:
+    """One shuffled pass over the training set; returns the state and each step's loss."""
+    epoch = state.epoch + 1
+    epoch_key = jax.random.fold_in(key, epoch)
+    order = jax.random.permutation(jax.random.fold_in(epoch_key, 0), len(train_dev))
+    params, opt_state, losses = state.params, state.opt_state, []
+    with Bar(trainer.steps_per_epoch, f"{name} epoch {epoch}/{trainer.settings.epochs}") as bar:
+        for s in range(trainer.steps_per_epoch):
+            batch = take_batch(train_dev, order, s, trainer.batch_size)
+            params, opt_state, metrics = trainer.train_step(
+                params, opt_state, batch, jax.random.fold_in(epoch_key, s + 1)
+            )
+            losses.append(metrics["loss"])  # on the device until the epoch ends: no waits
+            if log is not None and epoch == 1 and s == 0 and trainer.settings.augment:
+                shown = sharding.to_host(metrics["inputs"])
+                log.images("inputs/augmented", _examples(shown, 8), state.step + 1)
+            bar.advance()
+    losses = np.asarray(jnp.stack(losses)) if losses else np.zeros(0)
+    if log is not None:
+        for i, loss in enumerate(losses):
+            log.scalar("loss/train", float(loss), state.step + 1 + i)
+    state = state._replace(params=params, opt_state=opt_state, epoch=epoch,
+                           step=state.step + len(losses))  # fmt: skip
+    return state, losses
+
+
+def evaluate(trainer: Trainer, state: TrainState, val_images: np.ndarray) -> float:
+    """The validation loss of the current parameters (what early stopping watches)."""
+    return trainer.eval_loss(state.params, val_images)
+
+
+def end_epoch(state: TrainState, val_loss: float, settings: TrainConfig
+              ) -> tuple[TrainState, bool, bool]:
+    """Keep the best parameters and count epochs without improvement: (state, stopped
+    early, done)."""
+    if val_loss < state.best_val:
+        state = state._replace(best_params=state.params, best_val=val_loss, bad_epochs=0)
+    else:
+        state = state._replace(bad_epochs=state.bad_epochs + 1)
+    stopped_early = state.bad_epochs >= settings.patience and state.epoch < settings.epochs
+    return state, stopped_early, stopped_early or state.epoch == settings.epochs
+
+
+def log_epoch(trainer: Trainer, state: TrainState, losses: np.ndarray, val_loss: float,
+              val_images: np.ndarray, log: TrainingLog, name: str) -> None:
+    """The validation loss, six validation images over their reconstructions, one line."""
+    log.scalar("loss/validation", val_loss, state.step)
+    shown = _examples(val_images, 6)
+    recon = np.asarray(trainer.reconstruct(state.params, shown))
+    log.images("reconstructions/validation", np.concatenate([shown, recon]), state.step)
+    train_loss = float(np.mean(losses)) if len(losses) else math.nan
+    best = "  (best)" if state.bad_epochs == 0 else ""
+    log.line(f"{name} epoch {state.epoch}/{trainer.settings.epochs}: train loss "
+             f"{train_loss:.5f}  validation loss {val_loss:.5f}{best}")  # fmt: skip
+
+
+def _on_devices(train_images: np.ndarray, state: TrainState, mesh: Mesh | None):
+    """The training set and the state where the steps run: with a mesh every device holds
+    the training set (each step splits its batch) and a replica of the model."""
+    if mesh is None:
+        return jnp.asarray(train_images), state
+    params, opt_state, best = sharding.replicate(
+        (state.params, state.opt_state, state.best_params), mesh)  # fmt: skip
+    return sharding.replicate(train_images, mesh), state._replace(
+        params=params, opt_state=opt_state, best_params=best)  # fmt: skip
 
 
 def fit_autoencoder(
@@ -200,125 +332,35 @@ def fit_autoencoder(
     settings = settings or TrainConfig()
     train_images = np.asarray(train_images, np.float32)
     val_images = np.asarray(val_images, np.float32)
-    graphdef, params = ae.build(spec, jax.random.fold_in(key, 0), train_images.shape[1:3])
-    tx = make_optimizer(settings)
-    opt_state = tx.init(params)
-    best_params, best_val, bad_epochs, epoch, step, spent = params, math.inf, 0, 0, 0, 0.0
-    meta_base = {
-        "spec": {"kind": type(spec).__name__, **spec._asdict()},
-        "image_shape": list(train_images.shape[1:3]),
-        "identity": identity or {},
-    }
-
-    if checkpoint_dir is not None and checkpoints.has_checkpoint(checkpoint_dir):
-        meta = checkpoints.read_meta(checkpoint_dir)
-        if any(meta.get(k) != _json(v) for k, v in meta_base.items()):
-            raise UserError(
-                f"{checkpoint_dir} holds a model trained on other data or settings: delete "
-                "that folder, or set train.checkpoint_dir=PATH to keep both"
-            )
-        restored = checkpoints.restore(
-            checkpoint_dir, params, {"params": params, "opt_state": opt_state}
-        )
-        meta = restored.meta
-        best_params, best_val = restored.model, meta["best_val_loss"]
-        epoch, step, bad_epochs = meta["epoch"], meta["step"], meta["bad_epochs"]
-        spent = meta["train_seconds"]
-        if meta["done"]:
-            if log is not None:
-                log.line(f"{name}: restored the trained model from {checkpoint_dir}")
-            return TrainResult(graphdef, best_params, epoch, step, best_val,
-                               meta["stopped_early"], True, epoch, spent)  # fmt: skip
-        params, opt_state = restored.train["params"], restored.train["opt_state"]
-        if log is not None:
-            log.line(f"{name}: resuming after epoch {epoch} (step {step})")
-    resumed_epoch = epoch
-
-    n = len(train_images)
-    batch_size = min(settings.batch_size, n)
-    steps_per_epoch = n // batch_size  # the tail is dropped: one compiled batch shape
-    check_batch_splits(batch_size, mesh)
-    augment = AugmentConfig() if settings.augment else None
-    train_step = make_train_step(graphdef, tx, augment, mesh)
-    eval_loss = make_eval_loss(graphdef, batch_size)
-    reconstruct = ae.make_reconstruct(graphdef)
-    if mesh is None:
-        train_dev = jnp.asarray(train_images)
-    else:  # every device holds the training set; each step splits its batch
-        train_dev = sharding.replicate(train_images, mesh)
-        params, opt_state, best_params = sharding.replicate((params, opt_state, best_params), mesh)
+    shape = train_images.shape[1:3]
+    trainer, fresh = make_trainer(spec, shape, len(train_images), key, settings, mesh)
+    meta = checkpoint_meta(spec, shape, identity)
+    state, saved = init_or_restore(fresh, checkpoint_dir, meta, log, name)
+    if saved is not None and saved["done"]:
+        return TrainResult(trainer.graphdef, state.best_params, state.epoch, state.step,
+                           state.best_val, saved["stopped_early"], True, state.epoch,
+                           state.seconds)  # fmt: skip
+    resumed_epoch, spent = state.epoch, state.seconds
+    check_batch_splits(trainer.batch_size, mesh)
+    train_dev, state = _on_devices(train_images, state, mesh)
     if log is not None:
-        log.begin(step)
-
+        log.begin(state.step)
     stopped_early, last_save = False, time.perf_counter()
-    for epoch in range(resumed_epoch + 1, settings.epochs + 1):
-        epoch_key = jax.random.fold_in(key, epoch)
-        order = jax.random.permutation(jax.random.fold_in(epoch_key, 0), n)
-        losses = []  # on the device until the epoch ends: no wait between steps
-        with Bar(steps_per_epoch, f"{name} epoch {epoch}/{settings.epochs}") as bar:
-            for s in range(steps_per_epoch):
-                batch = take_batch(train_dev, order, s, batch_size)
-                params, opt_state, metrics = train_step(
-                    params, opt_state, batch, jax.random.fold_in(epoch_key, s + 1)
-                )
-                losses.append(metrics["loss"])
-                if log is not None and epoch == 1 and s == 0 and settings.augment:
-                    shown = sharding.to_host(metrics["inputs"])
-                    log.images("inputs/augmented", _examples(shown, 8), step + 1)
-                bar.advance()
-        losses = np.asarray(jnp.stack(losses)) if losses else np.zeros(0)
+    while state.epoch < settings.epochs:
+        state, losses = train_epoch(trainer, state, train_dev, key, log, name)
+        val_loss = evaluate(trainer, state, val_images)
+        state, stopped_early, done = end_epoch(state, val_loss, settings)
         if log is not None:
-            for i, loss in enumerate(losses):
-                log.scalar("loss/train", float(loss), step + 1 + i)
-        step += len(losses)
-        val = eval_loss(params, val_images)
-        if val < best_val:
-            best_params, best_val, bad_epochs = params, val, 0
-        else:
-            bad_epochs += 1
-        stopped_early = bad_epochs >= settings.patience and epoch < settings.epochs
-        done = stopped_early or epoch == settings.epochs
-        train_loss = float(np.mean(losses)) if len(losses) else math.nan
-        if log is not None:
-            log.scalar("loss/validation", val, step)
-            shown = _examples(val_images, 6)
-            recon = np.asarray(reconstruct(params, shown))
-            log.images("reconstructions/validation", np.concatenate([shown, recon]), step)
-            best = "  (best)" if bad_epochs == 0 else ""
-            log.line(f"{name} epoch {epoch}/{settings.epochs}: train loss {train_loss:.5f}  "
-                     f"validation loss {val:.5f}{best}")  # fmt: skip
-        seconds = spent + time.perf_counter() - start
+            log_epoch(trainer, state, losses, val_loss, val_images, log, name)
+        state = state._replace(seconds=spent + time.perf_counter() - start)
         due = time.perf_counter() - last_save >= settings.checkpoint_every_s
         if checkpoint_dir is not None and (due or done):
-            meta = {**meta_base, "epoch": epoch, "step": step, "best_val_loss": best_val,
-                    "bad_epochs": bad_epochs, "done": done, "stopped_early": stopped_early,
-                    "train_seconds": seconds}  # fmt: skip
-            checkpoints.save(checkpoint_dir, epoch, {"params": params, "opt_state": opt_state},
-                             best_params, meta)  # fmt: skip
+            summary = {"epoch": state.epoch, "step": state.step, "best_val_loss": state.best_val,
+                       "bad_epochs": state.bad_epochs, "done": done,
+                       "stopped_early": stopped_early, "train_seconds": state.seconds}
+            checkpoints.save(checkpoint_dir, state.epoch, state, {**meta, **summary})
             last_save = time.perf_counter()
         if done:
             break
-    return TrainResult(graphdef, best_params, epoch, step, best_val, stopped_early, False,
-                       resumed_epoch, seconds)  # fmt: skip
-
-
-def load_encoder(checkpoint_dir: str | Path):
-    """``(encode_fn, params)`` of a trained auto-encoder checkpoint folder.
-
-    ``encode_fn(params, images) -> (n, code)`` is jitted and pure: use it inside your own
-    jitted functions, vmap it, differentiate through it.
-    """
-    checkpoint_dir = Path(checkpoint_dir)
-    meta = checkpoints.read_meta(checkpoint_dir)
-    fields = dict(meta["spec"])
-    kind = fields.pop("kind")
-    if kind == "FAESpec":
-        fields.setdefault("centre", 0.0)  # written before the FAE centred its input
-        spec = ae.FAESpec(**fields)
-    elif kind == "CAESpec":
-        spec = ae.CAESpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
-    else:
-        raise UserError(f"{checkpoint_dir} holds an unknown model kind {kind!r}")
-    graphdef, like = ae.build(spec, jax.random.key(0), tuple(meta["image_shape"]))
-    params = checkpoints.restore(checkpoint_dir, like).model
-    return ae.make_encode(graphdef), params
+    return TrainResult(trainer.graphdef, state.best_params, state.epoch, state.step,
+                       state.best_val, stopped_early, False, resumed_epoch, state.seconds)

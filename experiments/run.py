@@ -1,0 +1,207 @@
+"""Running a validated sweep: start the devices, then every cell still to do, pair by pair.
+
+Per pair and method the runner asks the method for descriptors (``vpr_jax.methods``), then
+hands each removed-PC count and sequence length to ``experiments.cells``: matched, evaluated
+and written once per cell, as each one ends. ``experiments.sweep`` validates everything it
+can without JAX first and imports this module only then.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import jax
+import numpy as np
+from jax.sharding import Mesh
+from omegaconf import OmegaConf
+
+from experiments.cells import (
+    INCOMPLETE,
+    log_cell,
+    match,
+    pair_data,
+    save_cell,
+)
+from experiments.plan import Plan
+from vpr_jax.config import SWEEPS_REMOVED_PCS, MeshConfig, SweepConfig, to_dict
+from vpr_jax.encoders.train import check_batch_splits
+from vpr_jax.errors import UserError
+from vpr_jax.logdir import identity
+from vpr_jax.methods import METHODS, Descriptors, MethodContext, PairData, fit_pair_pca
+from vpr_jax.metrics import SCALAR_NAMES
+from vpr_jax.plots import correct_matches_figure, pr_curves_figure, recall_vs_ds_figure
+from vpr_jax.progress import Bar, Log, RunLog
+from vpr_jax.results import (
+    TIMING_NAMES,
+    ResultRow,
+    atomic_write_text,
+    cell_key,
+    markdown_table,
+    read_results,
+)
+from vpr_jax.sharding import make_mesh, mesh_size
+from vpr_jax.tb import TrainingRun, write_experiment_config
+
+Cell = tuple[tuple[str, str], str, int, int]  # ((db, query), method, removed_pcs, ds)
+
+
+def start_devices(cfg: MeshConfig, log: Log) -> Mesh | None:
+    """Join the other processes (``mesh.distributed``), then build the device mesh."""
+    if cfg.distributed:
+        # CPU devices of several processes talk through gloo; GPUs use NCCL regardless.
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+        try:
+            jax.distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
+        except (RuntimeError, ValueError) as err:
+            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise UserError(
+                f"mesh.distributed=true could not join the other processes ({first}): start "
+                "one process per host under a launcher JAX detects (SLURM, Open MPI), or set "
+                "mesh.coordinator=HOST:PORT, mesh.num_processes and mesh.process_id"
+            ) from None
+    try:
+        mesh = make_mesh(cfg.devices)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    if mesh is not None:
+        devices = mesh.devices.flat
+        log(f"mesh: {mesh_size(mesh)} {devices[0].platform} devices in "
+            f"{jax.process_count()} process(es); PCA samples, matching database and "
+            "training batches are split over them")  # fmt: skip
+    return mesh
+
+
+def method_context(cfg: SweepConfig, logdir: Path, out: Path, pair: str, log: Log,
+                   mesh: Mesh | None) -> MethodContext:
+    """Checkpoints under <train.checkpoint_dir>/<logdir name>/<pair>/<method>/; a training
+    run per auto-encoder next to its cell's run (under ``out``, where this process writes)."""
+    ident = identity(cfg)
+    return MethodContext(
+        checkpoint_dir=Path(cfg.train.checkpoint_dir).expanduser().resolve() / logdir.name / pair,
+        training_log=lambda method: TrainingRun(out / pair / f"{method}_training", log),
+        identity={k: ident[k] for k in ("data", "split", "seed")},  # + training settings
+        mesh=mesh,
+    )
+
+
+def write_summaries(logdir: Path) -> None:
+    """results.md and the figures, from every row of results.csv (this run's and earlier)."""
+    rows = read_results(logdir / "results.csv")
+    if not rows:
+        return
+    atomic_write_text(logdir / "results.md", markdown_table(rows))
+    figures = logdir / "figures"
+    figures.mkdir(exist_ok=True)
+
+    def load_curve(row):
+        with np.load(logdir / row.run / "curve.npz") as z:
+            return z["precision"], z["recall"]
+
+    pr_curves_figure(rows, load_curve, figures / "pr_curves.png")
+    correct_matches_figure(rows, figures / "correct_matches.png")
+    if len({r.ds for r in rows}) > 1:
+        recall_vs_ds_figure(rows, figures / "recall_vs_ds.png")
+
+
+def run_cells(plan: Plan, log: RunLog) -> Path:
+    """Start the devices, then fit, encode, match and evaluate every cell still to do,
+    writing each one's run and results.csv row as it ends."""
+    cfg = plan.cfg
+    mesh = start_devices(cfg.mesh, log)
+    if {"fae", "cae"} & set(cfg.methods):  # before anything is written, not mid-sweep
+        check_batch_splits(cfg.train.batch_size, mesh)
+    # With several processes all compute, process 0 writes the logdir; the others read it
+    # (shared file system) to agree on what is left, and write to a folder they delete.
+    primary = jax.process_index() == 0
+    out = plan.logdir if primary else Path(tempfile.mkdtemp(prefix="vpr_jax-replica-"))
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UserError(f"logdir {out} cannot be made ({err.strerror}): set logdir=PATH to a "
+                        "folder you can write") from None
+    try:
+        return _run(plan, log, out, mesh)
+    finally:
+        if not primary:
+            shutil.rmtree(out, ignore_errors=True)
+
+
+def _cells_to_do(plan: Plan, log: Log) -> tuple[list[Cell], set[Cell]]:
+    """Every cell of the sweep, in order, and those not yet in results.csv."""
+    cfg = plan.cfg
+    done = {cell_key(r) for r in read_results(plan.logdir / "results.csv")}
+    cells = [(p, m, k, ds) for p in plan.pairs for m in cfg.methods
+             for k in (cfg.removed_pcs if m in SWEEPS_REMOVED_PCS else (0,))
+             for ds in cfg.sequence_lengths]  # fmt: skip
+    todo = {c for c in cells if (f"{c[0][0]}-{c[0][1]}", *c[1:]) not in done}
+    if len(todo) < len(cells):
+        log(f"resuming: {len(cells) - len(todo)} of {len(cells)} cells already in results.csv")
+    return cells, todo
+
+
+def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
+    cfg, logdir = plan.cfg, plan.logdir
+    # Validation is over: from here on the logdir is written.
+    atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(to_dict(cfg)))
+    log.open(out / "sweep.log")
+    shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
+    log(f"sweep: {len(plan.route)} frames per season, {len(plan.split.train)} training and "
+        f"{len(plan.split.test)} test places per season, pairs "
+        f"{[f'{a}-{b}' for a, b in plan.pairs]}, methods {list(cfg.methods)}, logdir {logdir}")
+    cells, todo = _cells_to_do(plan, log)
+    write_experiment_config(
+        out,
+        {"season_pair": [f"{a}-{b}" for a, b in plan.pairs], "method": list(cfg.methods),
+         "removed_pcs": [float(c[2]) for c in cells], "ds": [float(c[3]) for c in cells]},
+        [f"metrics/{k}" for k in SCALAR_NAMES] + [f"timing/{k}" for k in TIMING_NAMES],
+    )  # fmt: skip
+    finished = len(cells) - len(todo)
+    with Bar(len(todo), "sweep cells") as bar:
+        for db, query in plan.pairs:
+            pair = f"{db}-{query}"
+            data, ctx = None, method_context(cfg, logdir, out, pair, log, mesh)
+            for method in cfg.methods:
+                # Counts with any ds still to do: their descriptors are computed again.
+                pending = tuple(sorted({k for (p, m, k, _) in todo
+                                        if p == (db, query) and m == method}))
+                if not pending:
+                    continue
+                if data is None:  # built on first use
+                    data = pair_data(plan.route, plan.split, db, query, cfg.split.database)
+                if method in SWEEPS_REMOVED_PCS and ctx.pca_fit is None:  # one fit per pair
+                    ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
+                for desc in METHODS[method](data, cfg, ctx._replace(removed_pcs=pending)):
+                    for row, warning in _save_descriptors(out, cfg, data, desc, todo, mesh):
+                        finished += 1
+                        bar.advance()
+                        log_cell(log, f"[{finished}/{len(cells)}]", row, warning)
+    write_summaries(out)
+    log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
+        f"view with: tensorboard --logdir {logdir}")
+    return logdir
+
+
+def _save_descriptors(out: Path, cfg: SweepConfig, data: PairData, desc: Descriptors,
+                      todo: set[Cell], mesh: Mesh | None) -> Iterator[tuple[ResultRow, str | None]]:
+    """Match, evaluate and save every cell of these descriptors still to do, count by count
+    and ds by ds; yields (row, the descriptors' warning with their first cell only)."""
+    pair = (data.db_season, data.query_season)
+    single = None  # ds = 1 matches of every count, from one pass
+    warning = desc.warning
+    for k in desc.removed_pcs:
+        for ds in cfg.sequence_lengths:
+            if (pair, desc.method, k, ds) not in todo:
+                continue
+            if ds == 1:
+                if single is None:
+                    single = dict(zip(desc.removed_pcs,
+                                      match(desc, data, 1, desc.removed_pcs, cfg, mesh),
+                                      strict=True))  # fmt: skip
+                top = single[k]
+            else:
+                (top,) = match(desc, data, ds, (k,), cfg, mesh)
+            yield save_cell(out, cfg, data, desc, k, ds, top), warning
+            warning = None
