@@ -314,7 +314,7 @@ class TensorBoardConfig:
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """``python -m experiments.sweep [key=value ...]``; see README for every key."""
+    """``python -m experiments.sweep [key=value ...]``; docs/config.md lists every key."""
 
     preset: str = "quick"  # quick | paper: a file under experiments/configs/
     season_pairs: str = "all"  # all, or db-query pairs: summer-fall,spring-fall
@@ -403,7 +403,7 @@ def parse_config(argv: list[str]) -> SweepConfig:
                                  OmegaConf.load(preset_file), cli)
         return OmegaConf.to_object(merged)
     except OmegaConfBaseException as err:
-        raise UserError(f"bad config: {_first_line(err)}: see README 'Config keys'") from None
+        raise UserError(f"bad config: {_first_line(err)}: see docs/config.md") from None
 
 
 def to_dict(cfg: SweepConfig) -> dict:

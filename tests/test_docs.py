@@ -1,0 +1,66 @@
+"""The documentation keeps up with the code: every config key is in docs/config.md (and
+nothing else is), README stays a short front door, and relative links resolve."""
+
+import dataclasses
+import re
+from pathlib import Path
+
+from vpr_jax.config import SweepConfig
+
+REPO = Path(__file__).resolve().parent.parent
+CONFIG_DOC = REPO / "docs" / "config.md"
+PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+
+
+def config_keys(obj=None, prefix=""):
+    """Dotted names of every leaf field, e.g. ``seed`` and ``data.root``. Nesting is read
+    off the default values: with ``from __future__ import annotations`` field.type is a
+    string."""
+    obj = SweepConfig() if obj is None else obj
+    keys = set()
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            keys |= config_keys(value, f"{prefix}{f.name}.")
+        else:
+            keys.add(prefix + f.name)
+    return keys
+
+
+def documented_keys():
+    """Backticked names in the first column of docs/config.md's table rows."""
+    keys = set()
+    for line in CONFIG_DOC.read_text().splitlines():
+        if line.startswith("|") and not line.startswith("|---"):
+            first_cell = line.split("|")[1]
+            keys |= set(re.findall(r"`([^`]+)`", first_cell))
+    return keys
+
+
+def test_every_config_field_is_documented():
+    text = CONFIG_DOC.read_text()
+    missing = sorted(k for k in config_keys() if f"`{k}`" not in text)
+    assert not missing, f"docs/config.md lacks {missing}"
+
+
+def test_documented_keys_exist():
+    unknown = sorted(documented_keys() - config_keys())
+    assert not unknown, f"docs/config.md lists keys that are no config field: {unknown}"
+
+
+def test_readme_is_short():
+    size = len((REPO / "README.md").read_bytes())  # as `wc -c` counts
+    assert size < 16_000, f"README.md has {size} bytes (limit 16,000): move detail to docs/"
+
+
+def test_relative_links_resolve():
+    broken = []
+    for page in PAGES:
+        text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)  # code blocks
+        text = re.sub(r"`[^`]*`", "", text)  # inline code
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            path = target.split("#", 1)[0]
+            if path and not target.startswith(("http://", "https://", "mailto:")):
+                if not (page.parent / path).exists():
+                    broken.append(f"{page.relative_to(REPO)}: {target}")
+    assert not broken, f"links to missing files: {broken}"
