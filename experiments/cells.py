@@ -1,7 +1,8 @@
 """One sweep cell, in one direction: a method's descriptors -> matches -> metrics -> its
 TensorBoard run and results.csv row.
 
-A cell is (season pair, method, removed-PC count, sequence length ds). ``match`` turns
+A cell is (season pair, method, objective, removed-PC count, sequence length ds); the
+objective is the auto-encoders' (empty for the other methods). ``match`` turns
 descriptors into each query's top-K database matches: for ds = 1 one blockwise cosine pass
 scores every removed-PC count's feature suffix at once; for ds > 1 sequence matching runs on
 one count's descriptors. ``save_cell`` evaluates the matches and writes the cell.
@@ -20,7 +21,7 @@ from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig
 from vpr_jax.data import Route
 from vpr_jax.data.splits import Split
 from vpr_jax.matching import top_k_matches
-from vpr_jax.methods import Descriptors, PairData
+from vpr_jax.methods import Descriptors, PairData, model_name
 from vpr_jax.metrics import Evaluation, evaluate_top_k
 from vpr_jax.progress import Log
 from vpr_jax.results import ResultRow, append_results
@@ -76,9 +77,11 @@ def match(desc: Descriptors, pair: PairData, ds: int, counts: tuple[int, ...],
     ]  # fmt: skip
 
 
-def run_name(pair: str, method: str, k: int, ds: int = 1) -> str:
-    """``summer-fall/pca_k005``, ``summer-fall/fae``; sequence cells add ``_ds10``."""
-    name = f"{pair}/{method}_k{k:03d}" if method in SWEEPS_REMOVED_PCS else f"{pair}/{method}"
+def run_name(pair: str, method: str, k: int, ds: int = 1, objective: str = "") -> str:
+    """``summer-fall/pca_k005``, ``summer-fall/fae``, ``summer-fall/fae_cross_season``;
+    sequence cells add ``_ds10``."""
+    model = model_name(method, objective)
+    name = f"{pair}/{model}_k{k:03d}" if method in SWEEPS_REMOVED_PCS else f"{pair}/{model}"
     return name if ds == 1 else f"{name}_ds{ds:02d}"
 
 
@@ -94,8 +97,8 @@ def _write_run(logdir: Path, name: str, cfg: SweepConfig, pair: PairData, desc: 
         scalars={"timing/fit_seconds": desc.fit_seconds,
                  "timing/encode_ms_per_image": desc.encode_ms_per_image,
                  "fit/n_iter": desc.n_iter, "fit/converged": int(desc.converged)},
-        hparams={"season_pair": pair.name, "method": desc.method, "removed_pcs": float(k),
-                 "ds": float(ds)},
+        hparams={"season_pair": pair.name, "method": desc.method, "objective": desc.objective,
+                 "removed_pcs": float(k), "ds": float(ds)},
         trial_id=name,
         n_thresholds=cfg.tb.pr_thresholds,
         examples=match_examples(pair.query, pair.db, pair.query_ids, pair.db_ids, top[1][:, 0],
@@ -113,14 +116,15 @@ def save_cell(logdir: Path, cfg: SweepConfig, pair: PairData, desc: Descriptors,
               ds: int, top: TopK) -> ResultRow:
     """Evaluate one cell's matches, write its TensorBoard run, then its results.csv row (the
     row last: a run without a row is redone by a resumed sweep). Returns the row."""
-    name = run_name(pair.name, desc.method, k, ds)
+    name = run_name(pair.name, desc.method, k, ds, desc.objective)
     shutil.rmtree(logdir / name, ignore_errors=True)  # left by a crash before its row
     ev = evaluate_top_k(*top, pair.query_ids, pair.db_ids, cfg.tolerance,
                         pr_convention=cfg.pr_convention)  # fmt: skip
     _write_run(logdir, name, cfg, pair, desc, k, ds, top, ev)
     row = ResultRow(
         season_pair=pair.name, db_season=pair.db_season, query_season=pair.query_season,
-        method=desc.method, removed_pcs=k, ds=ds, n_train=len(pair.train),
+        method=desc.method, objective=desc.objective, removed_pcs=k, ds=ds,
+        n_train=len(pair.train),
         n_test=len(pair.query), tolerance=cfg.tolerance, **ev.scalars(),
         fit_seconds=desc.fit_seconds, encode_ms_per_image=desc.encode_ms_per_image,
         n_iter=desc.n_iter, converged=int(desc.converged), seed=cfg.seed, run=name,
@@ -131,7 +135,8 @@ def save_cell(logdir: Path, cfg: SweepConfig, pair: PairData, desc: Descriptors,
 
 def log_cell(log: Log, counter: str, row: ResultRow, warning: str | None) -> None:
     """One plain line per finished cell (and its descriptors' warning, if any)."""
-    k_text = f" k={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else ""
+    k_text = f" {row.objective}" if row.objective else ""
+    k_text += f" k={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else ""
     k_text += f" ds={row.ds}" if row.ds != 1 else ""
     iters = f"  {row.n_iter} iterations" if row.n_iter else ""
     log(

@@ -56,10 +56,15 @@ def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
     return pairs
 
 
-def check_removed_pcs(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> None:
+def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int, log: Log) -> None:
+    """The removed-PC counts and component counts the training set can serve: PCA of the
+    pair's ``n_train_images`` (both seasons), the season differences of its aligned places."""
+    limit = min(n_train_images - 1, n_pixels)
+    if "lda" in cfg.methods and cfg.lda.n_components > limit:
+        log(f"note: lda.n_components={cfg.lda.n_components} exceeds the {limit} principal "
+            f"components of {n_train_images} training images: lda whitens in all {limit}")
     if not SWEEPS_REMOVED_PCS & set(cfg.methods):
         return
-    limit = min(n_train_images - 1, n_pixels)
     if max(cfg.removed_pcs) >= limit:
         raise UserError(f"removed_pcs={list(cfg.removed_pcs)} leaves no component: PCA of "
                         f"{n_train_images} training images has {limit} components, so use "
@@ -72,6 +77,12 @@ def check_removed_pcs(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> N
             f"images has {limit}: use ica.n_components <= {limit - max(cfg.removed_pcs)}, "
             "ica.n_components=all, or smaller removed_pcs"
         )
+    most = min(n_train_images // 2, n_pixels)
+    if "diff_pca" in cfg.methods and max(cfg.removed_pcs) > most:
+        raise UserError(f"removed_pcs up to {max(cfg.removed_pcs)} for diff_pca, but the "
+                        f"season differences of {n_train_images // 2} aligned training places "
+                        f"span at most {most} directions: use counts up to {most}, or leave "
+                        "diff_pca out of methods")
 
 
 def make_plan(cfg: SweepConfig, log: Log) -> Plan:
@@ -87,5 +98,5 @@ def make_plan(cfg: SweepConfig, log: Log) -> Plan:
     route = preprocess_route(route, cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded,
                              log)  # fmt: skip
     split = make_split(route.frame_ids, cfg.split)
-    check_removed_pcs(cfg, 2 * len(split.train), int(route.images[pairs[0][0]][0].size))
+    check_components(cfg, 2 * len(split.train), int(route.images[pairs[0][0]][0].size), log)
     return Plan(cfg, logdir, pairs, route, split)

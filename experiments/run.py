@@ -27,15 +27,25 @@ from experiments.cells import (
 )
 from experiments.plan import Plan
 from vpr_jax.config import SWEEPS_REMOVED_PCS, MeshConfig, SweepConfig, to_dict
+from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import check_batch_splits
 from vpr_jax.errors import UserError
 from vpr_jax.logdir import identity
-from vpr_jax.methods import METHODS, Descriptors, MethodContext, PairData, fit_pair_pca
+from vpr_jax.methods import (
+    AUTOENCODERS,
+    METHODS,
+    USES_PCA_FIT,
+    Descriptors,
+    MethodContext,
+    PairData,
+    fit_pair_pca,
+)
 from vpr_jax.metrics import SCALAR_NAMES
 from vpr_jax.plots import correct_matches_figure, pr_curves_figure, recall_vs_ds_figure
 from vpr_jax.progress import Bar, Log, RunLog
 from vpr_jax.results import (
     TIMING_NAMES,
+    CellKey,
     ResultRow,
     atomic_write_text,
     cell_key,
@@ -45,7 +55,11 @@ from vpr_jax.results import (
 from vpr_jax.sharding import make_mesh, mesh_size
 from vpr_jax.tb import TrainingRun, write_experiment_config
 
-Cell = tuple[tuple[str, str], str, int, int]  # ((db, query), method, removed_pcs, ds)
+
+def objectives_of(method: str, cfg: SweepConfig) -> tuple[str, ...]:
+    """The auto-encoders' objective axis (``fae.objective``, ``cae.objective``); one empty
+    objective for the other methods."""
+    return tuple(getattr(cfg, method).objective) if method in AUTOENCODERS else ("",)
 
 
 def start_devices(cfg: MeshConfig, log: Log) -> Mesh | None:
@@ -111,8 +125,10 @@ def run_cells(plan: Plan, log: RunLog) -> Path:
     writing each one's run and results.csv row as it ends."""
     cfg = plan.cfg
     mesh = start_devices(cfg.mesh, log)
-    if {"fae", "cae"} & set(cfg.methods):  # before anything is written, not mid-sweep
-        check_batch_splits(cfg.train.batch_size, mesh)
+    trained = [o for m in AUTOENCODERS & set(cfg.methods) for o in objectives_of(m, cfg)]
+    if trained:  # before anything is written, not mid-sweep
+        check_batch_splits(cfg.train.batch_size, mesh,
+                           max(objectives.examples_per_image(o) for o in trained))
     # With several processes all compute, process 0 writes the logdir; the others read it
     # (shared file system) to agree on what is left, and write to a folder they delete.
     primary = jax.process_index() == 0
@@ -129,14 +145,15 @@ def run_cells(plan: Plan, log: RunLog) -> Path:
             shutil.rmtree(out, ignore_errors=True)
 
 
-def _cells_to_do(plan: Plan, log: Log) -> tuple[list[Cell], set[Cell]]:
+def _cells_to_do(plan: Plan, log: Log) -> tuple[list[CellKey], set[CellKey]]:
     """Every cell of the sweep, in order, and those not yet in results.csv."""
     cfg = plan.cfg
     done = {cell_key(r) for r in read_results(plan.logdir / "results.csv")}
-    cells = [(p, m, k, ds) for p in plan.pairs for m in cfg.methods
+    cells = [(f"{a}-{b}", m, o, k, ds) for a, b in plan.pairs for m in cfg.methods
+             for o in objectives_of(m, cfg)
              for k in (cfg.removed_pcs if m in SWEEPS_REMOVED_PCS else (0,))
              for ds in cfg.sequence_lengths]  # fmt: skip
-    todo = {c for c in cells if (f"{c[0][0]}-{c[0][1]}", *c[1:]) not in done}
+    todo = {c for c in cells if c not in done}
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} cells already in results.csv")
     return cells, todo
@@ -155,7 +172,8 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
     write_experiment_config(
         out,
         {"season_pair": [f"{a}-{b}" for a, b in plan.pairs], "method": list(cfg.methods),
-         "removed_pcs": [float(c[2]) for c in cells], "ds": [float(c[3]) for c in cells]},
+         "objective": [c[2] for c in cells], "removed_pcs": [float(c[3]) for c in cells],
+         "ds": [float(c[4]) for c in cells]},
         [f"metrics/{k}" for k in SCALAR_NAMES] + [f"timing/{k}" for k in TIMING_NAMES],
     )  # fmt: skip
     finished = len(cells) - len(todo)
@@ -164,16 +182,20 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
             pair = f"{db}-{query}"
             data, ctx = None, method_context(cfg, logdir, out, pair, log, mesh)
             for method in cfg.methods:
-                # Counts with any ds still to do: their descriptors are computed again.
-                pending = tuple(sorted({k for (p, m, k, _) in todo
-                                        if p == (db, query) and m == method}))
-                if not pending:
+                # Objectives and counts with any cell still to do: their descriptors are
+                # computed again.
+                left = [(o, k) for (p, m, o, k, _) in todo if p == pair and m == method]
+                if not left:
                     continue
                 if data is None:  # built on first use
                     data = pair_data(plan.route, plan.split, db, query, cfg.split.database)
-                if method in SWEEPS_REMOVED_PCS and ctx.pca_fit is None:  # one fit per pair
+                if method in USES_PCA_FIT and ctx.pca_fit is None:  # one fit per pair
                     ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
-                for desc in METHODS[method](data, cfg, ctx._replace(removed_pcs=pending)):
+                todo_ctx = ctx._replace(
+                    objectives=tuple(o for o in objectives_of(method, cfg)
+                                     if o in {o for o, _ in left}),
+                    removed_pcs=tuple(sorted({k for _, k in left})))  # fmt: skip
+                for desc in METHODS[method](data, cfg, todo_ctx):
                     for row, warning in _save_descriptors(out, cfg, data, desc, todo, mesh):
                         finished += 1
                         bar.advance()
@@ -185,15 +207,15 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
 
 
 def _save_descriptors(out: Path, cfg: SweepConfig, data: PairData, desc: Descriptors,
-                      todo: set[Cell], mesh: Mesh | None) -> Iterator[tuple[ResultRow, str | None]]:
+                      todo: set[CellKey], mesh: Mesh | None
+                      ) -> Iterator[tuple[ResultRow, str | None]]:
     """Match, evaluate and save every cell of these descriptors still to do, count by count
     and ds by ds; yields (row, the descriptors' warning with their first cell only)."""
-    pair = (data.db_season, data.query_season)
     single = None  # ds = 1 matches of every count, from one pass
     warning = desc.warning
     for k in desc.removed_pcs:
         for ds in cfg.sequence_lengths:
-            if (pair, desc.method, k, ds) not in todo:
+            if (data.name, desc.method, desc.objective, k, ds) not in todo:
                 continue
             if ds == 1:
                 if single is None:

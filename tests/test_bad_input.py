@@ -153,6 +153,9 @@ CONFIG_CASES = {
         ["ica.n_components=590", "up to 20", "ica.n_components <= 579"],
     ),
     "ICs not a count": (["ica.n_components=many"], ["ica.n_components=many", "all"]),
+    "more change directions than aligned places": (
+        [*SMALL, "removed_pcs=[0,400]"], ["diff_pca", "300 aligned training places", "up to 300"]),
+    "LDA shrinkage outside [0, 1]": (["lda.shrinkage=1.5"], ["lda.shrinkage=1.5", "[0, 1]"]),
     "unknown ICA contrast": (["ica.fun=tanh"], ["ica.fun=tanh", "logcosh"]),
     "sequence of no image": (["sequence.ds=[0,10]"], ["sequence.ds=[0, 10]", "ds=1"]),
     "velocities backwards": (["sequence.v_min=1.2", "sequence.v_max=0.8"],

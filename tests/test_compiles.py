@@ -39,8 +39,9 @@ def compiled(tmp_path_factory):
 def test_the_first_sweep_compiles_the_training_step_once_per_model(compiled):
     first = compiled[0]
     steps = [c for c in first if c.startswith("jit(train_step)")]
-    assert len(steps) == 2, steps  # the FAE's and the CAE's, over both epochs
-    assert sum(c.startswith("jit(take_batch)") for c in first) == 1
+    assert len(steps) == 4, steps  # the FAE's and the CAE's for each objective, both epochs
+    # One batch gather for images, one for the places' pairs: the same for every model.
+    assert sum(c.startswith("jit(take_batch)") for c in first) == 2
     assert sum(c.startswith("jit(whitening_matrix)") for c in first) == 1  # both counts
 
 
@@ -48,8 +49,10 @@ def test_a_second_season_pair_compiles_nothing(compiled):
     assert compiled[1] == []
 
 
-def test_more_epochs_and_removed_pc_counts_compile_only_the_new_suffix_matcher(compiled):
-    # The removed-PC counts are a static tuple of the PCA matcher (one pass scores every
-    # count), so a new set of counts compiles that matcher once; ICA's new counts, the
-    # auto-encoders' extra epochs and all their blocks compile nothing.
-    assert [c.split(" | ")[0] for c in compiled[2]] == ["jit(_top_k_query_blocks)"], compiled[2]
+def test_more_epochs_and_removed_pc_counts_compile_only_the_new_suffix_matchers(compiled):
+    # The removed-PC counts are a static tuple of the suffix matcher (one pass scores every
+    # count), so a new set of counts compiles it once for PCA's coefficients and once for
+    # diff_pca's descriptors; their fits, ICA's new counts, the auto-encoders' extra epochs
+    # and all their blocks compile nothing.
+    names = [c.split(" | ")[0] for c in compiled[2]]
+    assert names == ["jit(_top_k_query_blocks)"] * 2, compiled[2]

@@ -68,7 +68,7 @@ def test_hostile_route_is_reported_kept_and_scored(hostile_root, tmp_path):
     ):
         assert line in proc.stdout and line in log, line
     rows = read_results(logdir / "results.csv")
-    assert len(rows) == 2 * (1 + 2 + 2 + 1)
+    assert len(rows) == 2 * (1 + 2 + 2 + 2)  # raw, PCA and ICA at two counts, both FAEs
     _assert_finite(rows)
     # A two-frame shift is within the default tolerance of 2: raw pixels still find most places.
     raw = {r.season_pair: r.recall_at_1 for r in rows if r.method == "raw"}

@@ -15,15 +15,16 @@ from vpr_jax.metrics import SCALAR_NAMES
 from vpr_jax.results import read_results
 
 METRICS = (*SCALAR_NAMES, "n_iter", "converged")
-# Two pairs, raw pixels and an FAE trained 6 epochs, checkpointed after every epoch.
+# Two pairs, raw pixels and an FAE trained 6 epochs on the cross_season objective (pairs of
+# aligned places), checkpointed after every epoch.
 KILLABLE = ["data.n_frames=400", "split.n_train=100", "split.n_test=60", "split.gap=10",
             "methods=[raw,fae]", "season_pairs=summer-fall,spring-fall", "fae.hidden=32",
-            "fae.epochs=6", "train.batch_size=16", "train.patience=10",
-            "train.checkpoint_every_s=0"]
+            "fae.objective=cross_season", "fae.epochs=6", "train.batch_size=16",
+            "train.patience=10", "train.checkpoint_every_s=0"]
 
 
 def _cells(rows: list[dict]) -> dict:
-    key = lambda r: (r.season_pair, r.method, r.removed_pcs)  # noqa: E731
+    key = lambda r: (r.season_pair, r.method, r.objective, r.removed_pcs)  # noqa: E731
     keys = [key(r) for r in rows]
     assert len(keys) == len(set(keys)), "a cell was written twice"
     return {key(r): {m: getattr(r, m) for m in METRICS} for r in rows}
@@ -63,9 +64,9 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
 
     logdir, ck = tmp_path / "cut" / "runs", tmp_path / "cut" / "checkpoints"
     args = [*KILLABLE, f"logdir={logdir}", f"train.checkpoint_dir={ck}"]
-    code, printed, _ = _signal_during("spring-fall fae epoch 3/6", args)
+    code, printed, _ = _signal_during("spring-fall fae_cross_season epoch 3/6", args)
     assert code == -signal.SIGKILL, printed[-2000:]
-    assert "summer-fall fae:" in printed  # the first pair's cells were done before the kill
+    assert "summer-fall fae cross_season:" in printed  # the first pair was done before the kill
     rows_at_kill = read_results(logdir / "results.csv")
     assert 0 < len(rows_at_kill) < 4
 
@@ -73,12 +74,12 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
     assert again.returncode == 0, again.stderr
     assert "resuming: 3 of 4 cells" in again.stdout
     # The kill may land before or during epoch 3's save: training resumes after 2 or 3.
-    assert "spring-fall fae: resuming after epoch" in again.stdout
+    assert "spring-fall fae_cross_season: resuming after epoch" in again.stdout
 
     expected = _cells(read_results(tmp_path / "whole" / "runs" / "results.csv"))
     assert _cells(read_results(logdir / "results.csv")) == expected
 
-    ea = read_run(logdir / "spring-fall" / "fae_training")
+    ea = read_run(logdir / "spring-fall" / "fae_cross_season_training")
     for tag in ("loss/train", "loss/validation"):
         steps = [e.step for e in ea.Scalars(tag)]
         assert len(steps) == len(set(steps)), f"{tag} has duplicated steps"
@@ -89,7 +90,8 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
 def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):
     logdir, ck = tmp_path / "runs", tmp_path / "checkpoints"
     args = [*KILLABLE, f"logdir={logdir}", f"train.checkpoint_dir={ck}"]
-    code, printed, err = _signal_during("summer-fall fae epoch 2/6", args, signal.SIGINT)
+    code, printed, err = _signal_during("summer-fall fae_cross_season epoch 2/6", args,
+                                        signal.SIGINT)
     assert code == 130, (printed[-2000:], err)
     assert "Traceback" not in err + printed
     (line,) = err.strip().splitlines()
@@ -102,14 +104,15 @@ def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):
     again = run_cli(*command[3:])
     assert again.returncode == 0, again.stderr
     assert "resuming: 1 of 4 cells" in again.stdout
-    assert "summer-fall fae: resuming after epoch" in again.stdout
+    assert "summer-fall fae_cross_season: resuming after epoch" in again.stdout
     assert len(_cells(read_results(logdir / "results.csv"))) == 4
 
 
 def test_sigterm_stops_like_ctrl_c(tmp_path):
     args = [*KILLABLE, f"logdir={tmp_path / 'runs'}",
             f"train.checkpoint_dir={tmp_path / 'checkpoints'}"]
-    code, printed, err = _signal_during("summer-fall fae epoch 2/6", args, signal.SIGTERM)
+    code, printed, err = _signal_during("summer-fall fae_cross_season epoch 2/6", args,
+                                        signal.SIGTERM)
     assert code == 128 + signal.SIGTERM, (printed[-2000:], err)
     (line,) = err.strip().splitlines()
     assert line.startswith("interrupted: 1 finished cell(s) are saved in "), line
@@ -131,7 +134,7 @@ def test_another_seed_gives_another_route_and_other_initial_weights(small_sweep,
     assert proc.returncode == 0, proc.stderr
     other = _cells(read_results(tmp_path / "runs" / "results.csv"))
     same_seed = _cells(read_results(first / "results.csv"))
-    key = ("summer-fall", "raw", 0)
+    key = ("summer-fall", "raw", "", 0)
     assert other[key] != same_seed[key]  # raw pixels: only the route can differ
     # The FAE's weights: (tiny FAEs can collapse to the same chance-level metrics).
     _, seed_0 = load_encoder(first.parent / "checkpoints" / "runs" / "summer-fall" / "fae")

@@ -21,9 +21,12 @@ def test_results_table_has_one_row_per_cell(small_sweep):
         header = next(csv.reader(f))
     assert tuple(header) == COLUMNS
     rows = read_results(logdir / "results.csv")
-    cells = {(r.season_pair, r.method, r.removed_pcs) for r in rows}
-    # raw, PCA and ICA at k = 0, 5, 20, FAE, CAE
-    assert len(rows) == len(cells) == 3 * (1 + 3 + 3 + 1 + 1)
+    cells = {(r.season_pair, r.method, r.objective, r.removed_pcs) for r in rows}
+    # raw, PCA, diff_pca and ICA at k = 0, 5, 20, LDA, FAE and CAE with both objectives
+    assert len(rows) == len(cells) == 3 * (1 + 3 + 3 + 3 + 1 + 2 + 2)
+    for r in rows:
+        trained = r.method in ("fae", "cae")
+        assert (r.objective in ("reconstruct", "cross_season")) if trained else r.objective == ""
     assert {r.season_pair for r in rows} == PAIRS
     for r in rows:
         assert r.db_season + "-" + r.query_season == r.season_pair
@@ -65,8 +68,11 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
             assert event.value == getattr(row, key)
         has_removed = "basis/removed_components" in tags["images"]
         assert has_removed == (row.method == "pca" and row.removed_pcs > 0)
+        has_changes = "basis/removed_changes" in tags["images"]
+        assert has_changes == (row.method == "diff_pca" and row.removed_pcs > 0)
         has_ics = "basis/independent_components" in tags["images"]
         assert has_ics == (row.method == "ica")
+        assert ("basis/invariant_directions" in tags["images"]) == (row.method == "lda")
         assert ("basis/hidden_units" in tags["images"]) == (row.method == "fae")
         if has_ics:  # the first 8 mixing columns as 32x64 tiles in a 2 x 4 grid
             (image,) = ea.Images("basis/independent_components")
@@ -75,30 +81,36 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
         info = plugin_data_pb2.HParamsPluginData.FromString(
             content["_hparams_/session_start_info"]).session_start_info
         assert info.hparams["season_pair"].string_value == row.season_pair
+        assert info.hparams["objective"].string_value == row.objective
         assert info.hparams["removed_pcs"].number_value == row.removed_pcs
         assert info.hparams["ds"].number_value == row.ds == 1
     root = read_run(logdir)
     experiment = plugin_data_pb2.HParamsPluginData.FromString(
         root.PluginTagToContent("hparams")["_hparams_/experiment"]).experiment
-    assert {h.name for h in experiment.hparam_infos} == {"season_pair", "method", "removed_pcs",
-                                                         "ds"}
+    assert {h.name for h in experiment.hparam_infos} == {"season_pair", "method", "objective",
+                                                         "removed_pcs", "ds"}
     assert "metrics/recall_at_1" in {m.name.tag for m in experiment.metric_infos}
 
 
 def test_autoencoder_training_is_logged_and_checkpointed(small_sweep):
     logdir, proc = small_sweep
     for pair in PAIRS:
-        for method in ("fae", "cae"):
+        for method in ("fae", "cae", "fae_cross_season", "cae_cross_season"):
             ea = read_run(logdir / pair / f"{method}_training")
             steps = [e.step for e in ea.Scalars("loss/train")]
             assert steps == list(range(1, len(steps) + 1)) and len(steps) >= 2
             assert len(ea.Scalars("loss/validation")) == 2  # one per epoch
             images = ea.Tags()["images"]
             assert "reconstructions/validation" in images and "inputs/augmented" in images
+            # Rows of six: inputs over outputs; for cross_season both seasons' inputs, their
+            # mean (the target), then the output for each season.
+            shown = ea.Images("reconstructions/validation")[-1]
+            rows = 5 if method.endswith("cross_season") else 2
+            assert (shown.height, shown.width) == (rows * 33 - 1, 6 * 65 - 1)
             folder = logdir.parent / "checkpoints" / logdir.name / pair / method
             saved = sorted(p.name for p in folder.iterdir() if p.name.isdigit())
             assert saved[-1] == "2" and set(saved) <= {"1", "2"}  # the last epoch, always
-    assert proc.stdout.count("validation loss") == 3 * 2 * 2  # a line per epoch
+    assert proc.stdout.count("validation loss") == 3 * 4 * 2  # a line per model and epoch
 
 
 def test_summaries_and_figures_are_written(small_sweep):

@@ -21,10 +21,11 @@ from vpr_jax.shapes import IMAGE_SHAPE
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
 SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")
-METHODS = ("raw", "pca", "ica", "fae", "cae")
+METHODS = ("raw", "pca", "diff_pca", "ica", "lda", "fae", "cae")
 # Methods whose cells are indexed by a removed-PC count; the others run once with k = 0.
-SWEEPS_REMOVED_PCS = frozenset({"pca", "ica"})
+SWEEPS_REMOVED_PCS = frozenset({"pca", "diff_pca", "ica"})
 ICA_FUNS = ("logcosh", "exp", "cube")
+OBJECTIVES = ("reconstruct", "cross_season")  # what the auto-encoders learn to output
 OPTIMIZERS = ("adam", "adamw", "sgd")
 PREPROCESSES = ("none", "patchnorm")
 
@@ -37,6 +38,17 @@ def _check(ok: bool, message: str) -> None:
 def _as_tuple(obj: Any, name: str) -> None:
     # Lists arrive from OmegaConf as lists; freeze them so configs are hashable values.
     object.__setattr__(obj, name, tuple(getattr(obj, name)))
+
+
+def _check_objectives(obj: Any, group: str) -> None:
+    _as_tuple(obj, "objective")
+    chosen = list(obj.objective)
+    _check(len(chosen) > 0, f"{group}.objective is empty: e.g. {group}.objective=cross_season")
+    unknown = [o for o in chosen if o not in OBJECTIVES]
+    _check(not unknown, f"{group}.objective={chosen} names unknown {unknown}: choose from "
+           f"{', '.join(OBJECTIVES)}")
+    _check(len(set(chosen)) == len(chosen), f"{group}.objective={chosen} repeats one: name "
+           "each once")
 
 
 @dataclass(frozen=True)
@@ -145,32 +157,74 @@ class ICAConfig:
 
 
 @dataclass(frozen=True)
+class LDAConfig:
+    """Within-place whitening inside the leading principal components (``vpr_jax.encoders.lda``)."""
+
+    n_components: int = 200  # leading principal components of the pair's PCA fit whitened in
+    shrinkage: float = 0.1  # towards trace/m x identity: 0 plain whitening, 1 PCA coordinates
+
+    def __post_init__(self):
+        _check(self.n_components >= 1, f"lda.n_components={self.n_components} must be >= 1")
+        _check(0 <= self.shrinkage <= 1, f"lda.shrinkage={self.shrinkage} is not in [0, 1]: "
+               "use e.g. 0.1 (0: plain whitening)")
+
+
+@dataclass(frozen=True)
 class FAEConfig:
     """One-hidden-layer auto-encoder: 2,048 pixels -> hidden (ReLU) -> 2,048 (sigmoid)."""
 
     hidden: int = 256  # code length: the place descriptor
     epochs: int | None = None  # overrides train.epochs for the FAE (it trains ~100x faster)
+    # One cell per objective: reconstruct (the seed's) and/or cross_season (see
+    # vpr_jax.encoders.objectives); one value or a list.
+    objective: list[str] = field(default_factory=lambda: list(OBJECTIVES))
     # Subtracted from every pixel before the hidden layer; 0 is the seed's layer, on which
     # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
     input_centre: float = 0.5
+    standardise: bool = True  # each image to zero mean, std 1/4 instead (input_centre unused)
 
     def __post_init__(self):
+        _check_objectives(self, "fae")
         _check(self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1")
         _check(0 <= self.input_centre <= 1, f"fae.input_centre={self.input_centre} is not a "
                "grey level in [0, 1]: use 0.5 (mid-grey) or 0 (the seed's layer)")
         _check(self.epochs is None or self.epochs >= 1, f"fae.epochs={self.epochs} must be >= 1")
 
 
+# Named CAE architectures (``cae.model``); the keys of CAEConfig override their parts.
+# fast: 2x2 pixel blocks to channels (no convolution at full resolution), two 3x3 levels of
+# 24 and 48 channels, a 4x8x32 = 1,024-value code: about 4 MFLOP an image to encode.
+# calc: the CAE sized like CALC's encoder that the suite began with (5x5x64, 4x4x128, a
+# 8x16x8 = 1,024-value code, about 130 MFLOP), ten times slower to train on a CPU.
+CAE_MODELS = {
+    "fast": {"channels": (24, 48), "kernel_sizes": (3, 3), "code_channels": 32,
+             "space_to_depth": 2},
+    "calc": {"channels": (64, 128), "kernel_sizes": (5, 4), "code_channels": 8,
+             "space_to_depth": 1},
+}  # fmt: skip
+
+
 @dataclass(frozen=True)
 class CAEConfig:
-    """Convolutional auto-encoder: per level a conv (ReLU) + 2x2 max-pool; mirrored decoder."""
+    """Convolutional auto-encoder: optionally f x f pixel blocks to channels, then per level
+    a conv (ReLU) + 2x2 max-pool, a 3x3 conv to the code; a mirrored decoder."""
 
-    channels: list[int] = field(default_factory=lambda: [64, 128])  # widths, one per level
-    kernel_sizes: list[int] = field(default_factory=lambda: [5, 4])  # one per level
-    code_channels: int = 8  # code = (32 / 2^levels) x (64 / 2^levels) x code_channels values
+    model: str = "fast"  # fast | calc: a named architecture (CAE_MODELS); keys below override
+    channels: list[int] | None = None  # widths, one per level
+    kernel_sizes: list[int] | None = None  # one per level
+    code_channels: int | None = None  # code = (32 / 2^levels / f) x (64 / ...) x this values
+    space_to_depth: int | None = None  # f: f x f pixel blocks become channels first (1: none)
+    standardise: bool = True  # each image to zero mean, std 1/4 before the encoder
     epochs: int | None = None  # overrides train.epochs for the CAE
+    objective: list[str] = field(default_factory=lambda: list(OBJECTIVES))  # as fae.objective
 
     def __post_init__(self):
+        _check_objectives(self, "cae")
+        _check(self.model in CAE_MODELS, f"cae.model={self.model} is unknown: use "
+               f"{' or '.join(CAE_MODELS)}")
+        for key, value in CAE_MODELS[self.model].items():  # the named model fills the gaps
+            if getattr(self, key) is None:
+                object.__setattr__(self, key, value)
         _check(self.epochs is None or self.epochs >= 1, f"cae.epochs={self.epochs} must be >= 1")
         _as_tuple(self, "channels")
         _as_tuple(self, "kernel_sizes")
@@ -179,11 +233,16 @@ class CAEConfig:
             f"cae.channels={list(self.channels)} and cae.kernel_sizes="
             f"{list(self.kernel_sizes)} need one entry per level, at least one level",
         )
-        _check(len(self.channels) <= 5, "cae.channels: at most 5 levels for 32x64 images")
         _check(
             min(self.channels) >= 1 and min(self.kernel_sizes) >= 1 and self.code_channels >= 1,
             "cae.channels, cae.kernel_sizes and cae.code_channels must be >= 1",
         )
+        h, w = IMAGE_SHAPE
+        down = 2 ** len(self.channels) * self.space_to_depth
+        _check(self.space_to_depth >= 1 and h % down == 0 and w % down == 0,
+               f"cae: {len(self.channels)} levels after {self.space_to_depth}x"
+               f"{self.space_to_depth} blocks do not tile {h}x{w} images: use fewer levels "
+               "or cae.space_to_depth=1")
 
 
 @dataclass(frozen=True)
@@ -318,7 +377,7 @@ class SweepConfig:
 
     preset: str = "quick"  # quick | paper: a file under experiments/configs/
     season_pairs: str = "all"  # all, or db-query pairs: summer-fall,spring-fall
-    methods: list[str] = field(default_factory=lambda: ["raw", "pca", "ica", "fae", "cae"])
+    methods: list[str] = field(default_factory=lambda: list(METHODS))
     removed_pcs: list[int] = field(default_factory=lambda: [0, 5, 10, 20, 50, 100])
     tolerance: int = 2  # a match is correct when |query frame - db frame| <= tolerance
     pr_convention: str = "vpr_bench"  # vpr_bench | has_match | vpr_tutorial: PR recall
@@ -329,6 +388,7 @@ class SweepConfig:
     split: SplitConfig = field(default_factory=SplitConfig)
     pca: PCAConfig = field(default_factory=PCAConfig)
     ica: ICAConfig = field(default_factory=ICAConfig)
+    lda: LDAConfig = field(default_factory=LDAConfig)
     fae: FAEConfig = field(default_factory=FAEConfig)
     cae: CAEConfig = field(default_factory=CAEConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -365,7 +425,7 @@ class SweepConfig:
 
 
 _LIST_KEYS = ("methods", "removed_pcs", "data.seasons", "cae.channels", "cae.kernel_sizes",
-              "sequence.ds")
+              "sequence.ds", "fae.objective", "cae.objective")
 
 
 def _normalise_cli(argv: list[str]) -> list[str]:

@@ -28,11 +28,14 @@ EXTENDABLE_KEYS = ("preset", "season_pairs", "methods", "removed_pcs", "logdir",
                    "matching", "mesh")
 # train.* keys that say where and how often models are saved, not what is trained.
 TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
-# sequence.* keys that add cells (the ds axis), like removed_pcs; its other keys change them.
-SEQUENCE_AXIS = ("enabled", "ds")
+# Keys inside a group that add cells, like removed_pcs: the ds axis, the auto-encoders'
+# objectives. The groups' other keys change the numbers of their cells.
+AXIS_KEYS = {"sequence": ("enabled", "ds"), "fae": ("objective",), "cae": ("objective",)}
 # Keys added with a default that changed what the suite computes: a saved config without
 # them was computed with the value here (other new keys' defaults reproduce the old runs).
-CHANGED_DEFAULTS = {("fae", "input_centre"): 0.0}
+CHANGED_DEFAULTS = {("fae", "input_centre"): 0.0, ("fae", "standardise"): False,
+                    ("cae", "model"): "calc", ("cae", "space_to_depth"): 1,
+                    ("cae", "standardise"): False}
 
 
 def identity(cfg: SweepConfig | dict) -> dict:
@@ -43,8 +46,9 @@ def identity(cfg: SweepConfig | dict) -> dict:
     out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
     for key in TRAIN_BOOKKEEPING:
         out.get("train", {}).pop(key, None)
-    for key in SEQUENCE_AXIS:
-        out.get("sequence", {}).pop(key, None)
+    for group, keys in AXIS_KEYS.items():
+        for key in keys:
+            out.get(group, {}).pop(key, None)
     return out
 
 

@@ -3,11 +3,13 @@ the queries. What comes out is ``Descriptors``; matching, metrics and files are 
 (``experiments/cells.py``), as in VPR_Tutorial's dataset -> features -> matching ->
 evaluation.
 
-Methods with the removed-PC axis (``SWEEPS_REMOVED_PCS``: pca, ica) serve several counts:
-PCA's coefficients serve every count at once (cosine on the coefficient suffix ``[k:]`` is
-change removal of the first k components, one similarity pass for all), ICA fits once per
-count and yields each as soon as it is done. The auto-encoders checkpoint their training
-and report it through the ``MethodContext`` the runner passes in.
+Methods with the removed-PC axis (``config.SWEEPS_REMOVED_PCS``: pca, diff_pca, ica) serve
+several counts: PCA's coefficients and diff_pca's suffix descriptors serve every count at
+once (cosine on the suffix ``[k:]`` is the removal of the first k components, one
+similarity pass for all), ICA fits once per count and yields each as soon as it is done.
+diff_pca and lda learn from the alignment of the training places (``aligned_train``). The
+auto-encoders checkpoint their training and report it through the ``MethodContext`` the
+runner passes in.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from jax.sharding import Mesh
 from vpr_jax import sharding
 from vpr_jax.config import SweepConfig
 from vpr_jax.encoders import autoencoders as ae
-from vpr_jax.encoders import ica, pca
+from vpr_jax.encoders import diff_pca, ica, lda, objectives, pca
 from vpr_jax.encoders.train import TrainingLog, fit_autoencoder, split_validation
 from vpr_jax.errors import UserError
 from vpr_jax.logdir import training_identity
@@ -46,6 +48,13 @@ class PairData(NamedTuple):
     @property
     def name(self) -> str:
         return f"{self.db_season}-{self.query_season}"
+
+    @property
+    def aligned_train(self) -> tuple[np.ndarray, np.ndarray]:
+        """(database season, query season) training images: row i of both shows the same
+        place (the same frame id: seasons are aligned by frame id when loaded)."""
+        n = len(self.train) // 2
+        return self.train[:n], self.train[n:]
 
 
 class PCAFit(NamedTuple):
@@ -71,12 +80,14 @@ class Descriptors(NamedTuple):
     basis: tuple[np.ndarray | None, ...] = ()  # per count: (m, 32, 64) images of what the
     basis_name: str = "removed_components"  # method removed or learned; TensorBoard tag
     warning: str | None = None  # one line for the run log (non-convergence, degenerate)
+    objective: str = ""  # the auto-encoders' training objective; "" for the other methods
 
 
 class MethodContext(NamedTuple):
     """What a method may need from the runner besides the pair's images and the config."""
 
-    removed_pcs: tuple[int, ...] = (0,)  # counts still to do (pca, ica)
+    removed_pcs: tuple[int, ...] = (0,)  # counts still to do (pca, diff_pca, ica)
+    objectives: tuple[str, ...] = ("reconstruct",)  # objectives still to do (fae, cae)
     pca_fit: PCAFit | None = None  # the pair's PCA fit (pca, ica): see fit_pair_pca
     checkpoint_dir: Path | None = None  # this pair's model folders go under it
     training_log: Callable[[str], TrainingLog] | None = None  # method name -> its log
@@ -91,9 +102,9 @@ def _timed(fn: Callable, *args):
 
 
 def fit_pair_pca(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> PCAFit:
-    """The PCA fit of the pair's training images and its seconds. The methods with the
-    removed-PC axis (pca, ica: ``config.SWEEPS_REMOVED_PCS``) use it; the runner fits it
-    once per pair and passes it in their context."""
+    """The PCA fit of the pair's training images and its seconds. The methods in
+    ``USES_PCA_FIT`` start from it; the runner fits it once per pair and passes it in their
+    context."""
     state, seconds = _timed(lambda x: pca.fit_pca(x, solver=cfg.pca.solver, mesh=mesh),
                             pair.train)  # fmt: skip
     return PCAFit(state, seconds)
@@ -173,6 +184,38 @@ def describe_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
                            starts=ks, basis=basis, fit_seconds=ctx.pca_fit.seconds)
 
 
+def describe_diff_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext
+                      ) -> Iterator[Descriptors]:
+    """Supervised change removal (Lowry & Milford) for every removed-PC count from one fit
+    on the aligned training places' season differences: each count's descriptor is the
+    image minus its projection on the first k change directions, all counts scored in one
+    matching pass over suffixes of ``diff_pca.suffix_descriptors``."""
+    ks = ctx.removed_pcs
+    state, fit_s = _timed(  # every direction: shapes that do not depend on the counts
+        lambda a, b: diff_pca.fit_diff_pca(a, b, solver=cfg.pca.solver, mesh=ctx.mesh),
+        *pair.aligned_train,
+    )  # fmt: skip
+    shown = _images(state.components[: cfg.tb.n_basis_images], pair)
+    yield _descriptors("diff_pca", lambda x: diff_pca.suffix_descriptors(state, x), pair,
+                       removed_pcs=ks, starts=ks, basis=[shown[:k] if k else None for k in ks],
+                       fit_seconds=fit_s, basis_name="removed_changes")  # fmt: skip
+
+
+def describe_lda(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
+    """Within-place whitening in the leading ``lda.n_components`` components of the pair's
+    PCA fit (all of them when it has fewer; ``vpr_jax.encoders.lda``). fit_seconds is that
+    PCA fit plus the whitening."""
+    m = min(cfg.lda.n_components, pca.rank_limit(len(pair.train), pair.train[0].size))
+    state, lda_s = _timed(
+        lambda a, b: lda.fit_lda(ctx.pca_fit.state, a, b, m, cfg.lda.shrinkage),
+        *pair.aligned_train,
+    )  # fmt: skip
+    shown = _images(state.transform[: cfg.tb.n_basis_images], pair)
+    yield _descriptors("lda", lambda x: lda.encode(state, x), pair, basis=(shown,),
+                       fit_seconds=ctx.pca_fit.seconds + lda_s,
+                       basis_name="invariant_directions")  # fmt: skip
+
+
 def describe_ica(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
     """Symmetric FastICA per removed-PC count, all whitened from the pair's one PCA fit.
 
@@ -211,43 +254,62 @@ def describe_ica(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
 
 def autoencoder_spec(method: str, cfg: SweepConfig) -> ae.Spec:
     if method == "fae":
-        return ae.FAESpec(hidden=cfg.fae.hidden, centre=cfg.fae.input_centre)
+        return ae.FAESpec(hidden=cfg.fae.hidden, centre=cfg.fae.input_centre,
+                          standardise=cfg.fae.standardise)
     c = cfg.cae
-    return ae.CAESpec(tuple(c.channels), tuple(c.kernel_sizes), c.code_channels)
+    return ae.CAESpec(tuple(c.channels), tuple(c.kernel_sizes), c.code_channels,
+                      c.space_to_depth, c.standardise)
+
+
+def model_name(method: str, objective: str = "") -> str:
+    """``fae`` for the seed's objective (and methods without one), ``fae_cross_season``
+    otherwise: names the cell's run, the model's checkpoint folder and its training run."""
+    return method if objective in ("", "reconstruct") else f"{method}_{objective}"
 
 
 def describe_autoencoder(
     method: str, pair: PairData, cfg: SweepConfig, ctx: MethodContext
 ) -> Iterator[Descriptors]:
-    """Train (or resume, or restore) the pair's auto-encoder; its code is the descriptor.
+    """Train (or resume, or restore) the pair's auto-encoder for each objective still to do
+    (``ctx.objectives``); its code is the descriptor.
 
     It trains on both seasons' training images minus the tail of each stretch, which is
-    the validation set for early stopping. fit_seconds is the training time (of all
-    sessions, when it was resumed); n_iter counts epochs; converged means early stopping
-    ended training before train.epochs.
+    the validation set for early stopping: the images themselves for ``reconstruct``, the
+    aligned places' pairs for ``cross_season`` (``vpr_jax.encoders.objectives``). Every
+    objective starts from the same initial weights. fit_seconds is the training time (of
+    all sessions, when it was resumed); n_iter counts epochs; converged means early
+    stopping ended training before train.epochs.
     """
     spec = autoencoder_spec(method, cfg)
     train, val = split_validation(pair.train, 2, cfg.train.val_fraction)
     epochs = getattr(cfg, method).epochs or cfg.train.epochs  # fae.epochs / cae.epochs first
     settings = dataclasses.replace(cfg.train, epochs=epochs)
-    log = ctx.training_log(method) if ctx.training_log else None
-    try:
-        result = fit_autoencoder(
-            spec,
-            train,
-            val,
-            jax.random.fold_in(jax.random.key(cfg.seed), zlib.crc32(method.encode())),
-            settings,
-            checkpoint_dir=ctx.checkpoint_dir / method if ctx.checkpoint_dir else None,
-            identity={**(ctx.identity or {}), "train": training_identity(settings),
-                      "season_pair": pair.name, "method": method},  # fmt: skip
-            log=log,
-            name=f"{pair.name} {method}",
-            mesh=ctx.mesh,
-        )
-    finally:
-        if log is not None:
-            log.close()
+    for objective in ctx.objectives:
+        name = model_name(method, objective)
+        log = ctx.training_log(name) if ctx.training_log else None
+        try:
+            result = fit_autoencoder(
+                spec,
+                objectives.training_data(objective, train),
+                objectives.training_data(objective, val),
+                jax.random.fold_in(jax.random.key(cfg.seed), zlib.crc32(method.encode())),
+                settings,
+                checkpoint_dir=ctx.checkpoint_dir / name if ctx.checkpoint_dir else None,
+                identity={**(ctx.identity or {}), "train": training_identity(settings),
+                          "season_pair": pair.name, "method": method},  # fmt: skip
+                log=log,
+                name=f"{pair.name} {name}",
+                mesh=ctx.mesh,
+                objective=objective,
+            )
+        finally:
+            if log is not None:
+                log.close()
+        yield _autoencoder_descriptors(method, objective, result, pair, cfg)
+
+
+def _autoencoder_descriptors(method: str, objective: str, result, pair: PairData,
+                             cfg: SweepConfig) -> Descriptors:
     encode = ae.make_encode(result.graphdef)
     # Encoding runs on one device: a mesh-replicated model would encode on every device.
     params = jax.tree.map(sharding.to_host, result.params)
@@ -255,9 +317,10 @@ def describe_autoencoder(
     if method == "fae":  # what each hidden unit looks for: its weights as an image
         weights = np.asarray(params["encoder"]["kernel"]).T[: cfg.tb.n_basis_images]
         basis = _images(weights, pair)
-    yield _descriptors(method, lambda x: encode(params, x), pair, basis=(basis,),
-                       fit_seconds=result.train_seconds, n_iter=result.epochs,
-                       converged=result.stopped_early, basis_name="hidden_units")  # fmt: skip
+    return _descriptors(method, lambda x: encode(params, x), pair, basis=(basis,),
+                        objective=objective, fit_seconds=result.train_seconds,
+                        n_iter=result.epochs, converged=result.stopped_early,
+                        basis_name="hidden_units")  # fmt: skip
 
 
 # A method maps (pair, config, context) to its descriptors, in any order, as they finish.
@@ -265,7 +328,11 @@ Method = Callable[[PairData, SweepConfig, MethodContext], Iterable[Descriptors]]
 METHODS: dict[str, Method] = {
     "raw": describe_raw,
     "pca": describe_pca,
+    "diff_pca": describe_diff_pca,
     "ica": describe_ica,
+    "lda": describe_lda,
     "fae": partial(describe_autoencoder, "fae"),
     "cae": partial(describe_autoencoder, "cae"),
 }
+USES_PCA_FIT = frozenset({"pca", "ica", "lda"})  # their context carries the pair's PCA fit
+AUTOENCODERS = frozenset({"fae", "cae"})  # trained, one model per objective

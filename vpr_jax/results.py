@@ -17,6 +17,7 @@ ResultRow = NamedTuple("ResultRow", [
     ("db_season", str),
     ("query_season", str),
     ("method", str),
+    ("objective", str),  # the auto-encoders' training objective; empty for other methods
     ("removed_pcs", int),  # 0 for methods without the removed-PC axis
     ("ds", int),  # sequence length; 1 = single images
     ("n_train", int),  # images the encoder was fitted on, both seasons
@@ -34,7 +35,10 @@ COLUMNS: tuple[str, ...] = ResultRow._fields
 COLUMN_TYPES: dict[str, type] = ResultRow.__annotations__
 TIMING_NAMES = ("fit_seconds", "encode_ms_per_image")
 # Columns added since the first tables were written, with the value those tables meant.
-ADDED_COLUMNS = {"ds": "1"}  # sequence length: 1 is single-image matching
+ADDED_COLUMNS = {
+    "ds": lambda row: "1",  # sequence length: 1 is single-image matching
+    "objective": lambda row: "reconstruct" if row["method"] in ("fae", "cae") else "",
+}
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -52,14 +56,17 @@ def atomic_write_text(path: Path, text: str) -> None:
         raise
 
 
-def cell_key(row: ResultRow) -> tuple[str, str, int, int]:
+CellKey = tuple[str, str, str, int, int]  # (season pair, method, objective, removed PCs, ds)
+
+
+def cell_key(row: ResultRow) -> CellKey:
     """What identifies a cell: a resumed sweep skips the cells whose key is in the table."""
-    return row.season_pair, row.method, row.removed_pcs, row.ds
+    return row.season_pair, row.method, row.objective, row.removed_pcs, row.ds
 
 
 def _parse(row: dict) -> ResultRow:
     """A csv row of text (or a row of values) as a typed ResultRow."""
-    return ResultRow(*(COLUMN_TYPES[col](row[col] if col in row else ADDED_COLUMNS[col])
+    return ResultRow(*(COLUMN_TYPES[col](row[col] if col in row else ADDED_COLUMNS[col](row))
                        for col in COLUMNS))  # fmt: skip
 
 
@@ -100,10 +107,11 @@ def append_results(path: Path, new_rows: list[ResultRow]) -> list[ResultRow]:
 
 
 def best_rows(rows: list[ResultRow], metric: str = "recall_at_1") -> list[ResultRow]:
-    """Per (pair, method, ds), the row with the best metric (smallest removed_pcs on ties)."""
-    best: dict[tuple[str, str, int], ResultRow] = {}
+    """Per (pair, method, objective, ds), the row with the best metric (smallest
+    removed_pcs on ties)."""
+    best: dict[tuple[str, str, str, int], ResultRow] = {}
     for row in sorted(rows, key=lambda r: r.removed_pcs):
-        key = (row.season_pair, row.method, row.ds)
+        key = (row.season_pair, row.method, row.objective, row.ds)
         if key not in best or getattr(row, metric) > getattr(best[key], metric):
             best[key] = row
     return list(best.values())
@@ -113,13 +121,14 @@ def markdown_table(rows: list[ResultRow]) -> str:
     """results.md: the best removed-PC count per method (and sequence length), then every
     cell. The ds column appears once a sweep holds sequence-matching cells."""
     sequences = any(r.ds != 1 for r in rows)
-    cols = ("season_pair", "method", "removed_pcs", *(("ds",) if sequences else ()),
+    cols = ("season_pair", "method", "objective", "removed_pcs", *(("ds",) if sequences else ()),
             "recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_5", "recall_at_10",
             "fit_seconds", "encode_ms_per_image")
 
     def table(rs: list[ResultRow]) -> list[str]:
         lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-        for r in sorted(rs, key=lambda r: (r.season_pair, r.method, r.removed_pcs, r.ds)):
+        for r in sorted(rs, key=lambda r: (r.season_pair, r.method, r.objective, r.removed_pcs,
+                                           r.ds)):
             values = [getattr(r, c) for c in cols]
             cells = [f"{v:.3f}" if isinstance(v, float) else str(v) for v in values]
             lines.append("| " + " | ".join(cells) + " |")
@@ -142,7 +151,8 @@ def markdown_table(rows: list[ResultRow]) -> str:
         *table(rows),
         "",
     ]
-    stuck = [r for r in rows if not r.converged]
+    # For the auto-encoders converged=0 only says early stopping did not end the training.
+    stuck = [r for r in rows if not r.converged and r.method not in ("fae", "cae")]
     if stuck:
         cells = ", ".join(f"{r.season_pair} {r.method} k={r.removed_pcs}" for r in stuck)
         lines += [

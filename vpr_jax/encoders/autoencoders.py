@@ -42,12 +42,24 @@ from vpr_jax.shapes import IMAGE_SHAPE
 class FAESpec(NamedTuple):
     hidden: int = 256  # code length
     centre: float = 0.5  # subtracted from every pixel before the hidden layer (0: the seed's)
+    standardise: bool = False  # each image to zero mean and std 1/4 first (centre unused)
 
 
 class CAESpec(NamedTuple):
     channels: tuple[int, ...] = (64, 128)  # one conv + 2x2 max-pool per level
     kernel_sizes: tuple[int, ...] = (5, 4)  # one per level
     code_channels: int = 8  # channels of the code; code length = 8 x 16 x this (2 levels)
+    space_to_depth: int = 1  # f: f x f pixel blocks become f^2 channels before level 1
+    standardise: bool = False  # each image to zero mean and std 1/4 before the encoder
+
+
+def standardise(images: Float[Array, "n ..."]) -> Float[Array, "n ..."]:
+    """Each image to zero mean and standard deviation 1/4 (in the range of centred grey
+    levels): a season's global brightness and contrast are gone before the encoder sees it.
+    A flat image (a tunnel) stays flat: zero."""
+    axes = tuple(range(1, images.ndim))
+    centred = images - jnp.mean(images, axis=axes, keepdims=True)
+    return 0.25 * centred / (jnp.std(images, axis=axes, keepdims=True) + 1e-3)
 
 
 class FAE(nnx.Module):
@@ -64,11 +76,14 @@ class FAE(nnx.Module):
 
     def __init__(self, spec: FAESpec, n_pixels: int, *, rngs: nnx.Rngs):
         self.centre = float(spec.centre)
+        self.standardise = bool(spec.standardise)
         self.encoder = nnx.Linear(n_pixels, spec.hidden, rngs=rngs)
         self.decoder = nnx.Linear(spec.hidden, n_pixels, rngs=rngs)
 
     def encode(self, images: Float[Array, "n h w"]) -> Float[Array, "n code"]:
-        return nnx.relu(self.encoder(images.reshape(images.shape[0], -1) - self.centre))
+        x = images.reshape(images.shape[0], -1)
+        x = standardise(x) if self.standardise else x - self.centre
+        return nnx.relu(self.encoder(x))
 
     def __call__(self, images: Float[Array, "n h w"]) -> Float[Array, "n h w"]:
         return nnx.sigmoid(self.decoder(self.encode(images))).reshape(images.shape)
@@ -82,6 +97,21 @@ def max_pool_2x2(x: Float[Array, "n h w c"]) -> Float[Array, "n h2 w2 c"]:
     return x.reshape(n, h // 2, 2, w // 2, 2, c).max(axis=(2, 4))
 
 
+def space_to_depth(x: Float[Array, "n h w c"], f: int) -> Float[Array, "n hf wf cff"]:
+    """Each f x f block of pixels becomes f^2 channels: the resolution drops f-fold for free,
+    so no convolution runs at full resolution (CALC downsamples early for the same reason)."""
+    n, h, w, c = x.shape
+    x = x.reshape(n, h // f, f, w // f, f, c)
+    return x.transpose(0, 1, 3, 2, 4, 5).reshape(n, h // f, w // f, f * f * c)
+
+
+def depth_to_space(x: Float[Array, "n h w cff"], f: int) -> Float[Array, "n hf wf c"]:
+    """The inverse of ``space_to_depth``."""
+    n, h, w, c = x.shape
+    x = x.reshape(n, h, w, f, f, c // (f * f))
+    return x.transpose(0, 1, 3, 2, 4, 5).reshape(n, h * f, w * f, c // (f * f))
+
+
 def _conv(n_in: int, n_out: int, k: int, rngs: nnx.Rngs) -> nnx.Conv:
     """k x k, stride 1, SAME; its kernel gradient is fast on CPU (see encoders/conv.py)."""
     return nnx.Conv(n_in, n_out, (k, k), padding="SAME", conv_general_dilated=conv_general_dilated,
@@ -92,7 +122,9 @@ class CAE(nnx.Module):
     def __init__(self, spec: CAESpec, *, rngs: nnx.Rngs):
         if len(spec.channels) != len(spec.kernel_sizes) or not spec.channels:
             raise ValueError("CAE needs one kernel size per level and at least one level")
-        widths = (1, *spec.channels)
+        self.block = int(spec.space_to_depth)
+        self.standardise = bool(spec.standardise)
+        widths = (self.block**2, *spec.channels)
         self.down = nnx.List(
             _conv(widths[i], widths[i + 1], k, rngs)
             for i, k in enumerate(spec.kernel_sizes)
@@ -107,6 +139,10 @@ class CAE(nnx.Module):
 
     def _code_map(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n hc wc c"]:
         x = images if images.ndim == 4 else images[..., None]
+        if self.standardise:
+            x = standardise(x)
+        if self.block > 1:
+            x = space_to_depth(x, self.block)
         for conv in self.down:
             x = max_pool_2x2(nnx.relu(conv(x)))
         return nnx.relu(self.to_code(x))
@@ -120,8 +156,10 @@ class CAE(nnx.Module):
         for i in reversed(range(len(self.up))):
             x = jnp.repeat(jnp.repeat(x, 2, axis=1), 2, axis=2)  # nearest up-sampling
             x = self.up[i](x)
-            x = nnx.relu(x) if i > 0 else nnx.sigmoid(x)
-        return x.reshape(images.shape)
+            x = nnx.relu(x) if i > 0 else x
+        if self.block > 1:
+            x = depth_to_space(x, self.block)
+        return nnx.sigmoid(x).reshape(images.shape)
 
 
 Spec = FAESpec | CAESpec
@@ -168,10 +206,11 @@ def build(spec: Spec, key: jax.Array, image_shape: Sequence[int] = IMAGE_SHAPE):
     """(graphdef, params): the module split once; params is a nested dict of arrays."""
     image_shape = tuple(int(side) for side in image_shape)
     if isinstance(spec, CAESpec):
-        down = 2 ** len(spec.channels)
+        down = 2 ** len(spec.channels) * spec.space_to_depth
         if image_shape[0] % down or image_shape[1] % down:
-            raise ValueError(f"CAE with {len(spec.channels)} levels needs image sides "
-                             f"divisible by {down}, got {image_shape}")  # fmt: skip
+            raise ValueError(f"CAE with {len(spec.channels)} levels after {spec.space_to_depth}"
+                             f"x{spec.space_to_depth} blocks needs image sides divisible by "
+                             f"{down}, got {image_shape}")  # fmt: skip
     graphdef, _ = nnx.split(nnx.eval_shape(lambda: _module(spec, key, image_shape)))
     return graphdef, _init_params(spec, key, image_shape)
 

@@ -52,7 +52,7 @@ def choose_solver(n_samples: int, n_features: int, solver: Solver = "auto") -> s
     return solver
 
 
-def _flip_signs(components: Float[Array, "c d"]) -> Float[Array, "c d"]:
+def flip_signs(components: Float[Array, "c d"]) -> Float[Array, "c d"]:
     # scikit-learn's svd_flip convention: the largest-magnitude entry of each row is positive.
     rows = jnp.arange(components.shape[0])
     pivot = components[rows, jnp.argmax(jnp.abs(components), axis=1)]
@@ -112,7 +112,7 @@ def _from_scatter(mean, scatter, n, n_components: int) -> PCAState:
     eigvals, eigvecs = jnp.linalg.eigh(scatter / (n - 1))
     eigvals = eigvals[::-1][:n_components]
     components = eigvecs[:, ::-1][:, :n_components].T
-    return PCAState(mean, _flip_signs(components), jnp.maximum(eigvals, 0.0))
+    return PCAState(mean, flip_signs(components), jnp.maximum(eigvals, 0.0))
 
 
 @functools.partial(jax.jit, static_argnames=("n_components",))
@@ -126,7 +126,7 @@ def _fit_gram(x: Float[Array, "n d"], n_components: int) -> PCAState:
     scale = jnp.where(eigvals > 0, jax.lax.rsqrt(jnp.maximum(eigvals, 1e-30)), 0.0)
     components = (xc.T @ eigvecs[:, ::-1][:, :n_components] * scale).T
     eigvals = eigvals / (n - 1)
-    return PCAState(mean, _flip_signs(components), jnp.maximum(eigvals, 0.0))
+    return PCAState(mean, flip_signs(components), jnp.maximum(eigvals, 0.0))
 
 
 def fit_pca(

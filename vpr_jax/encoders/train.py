@@ -33,8 +33,9 @@ from jaxtyping import Array, Float
 
 from vpr_jax import checkpoints, sharding
 from vpr_jax.config import TrainConfig, plain
-from vpr_jax.data.augment import AugmentConfig, augment_batch
+from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.encoders import objectives
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Bar
 from vpr_jax.sharding import AXIS
@@ -94,10 +95,12 @@ def make_train_step(
     tx: optax.GradientTransformation,
     augment: AugmentConfig | None,
     mesh: Mesh | None = None,
+    objective: str = "reconstruct",
 ):
     """The jitted step ``(params, opt_state, batch, key) -> (params, opt_state, metrics)``
-    for one architecture and optimizer; metrics: ``loss`` and the ``inputs`` it trained on
-    (the batch after augmentation).
+    for one architecture, optimizer and objective (``vpr_jax.encoders.objectives``: a batch
+    of images, or of aligned pairs); metrics: ``loss`` and the ``inputs`` it trained on (the
+    batch after augmentation).
 
     With a ``mesh`` the batch is split across its devices (data parallel): parameters and
     optimizer state are replicated and XLA all-reduces the gradients. Augmentation draws
@@ -106,14 +109,14 @@ def make_train_step(
     batch_sharding = None if mesh is None else NamedSharding(mesh, P(AXIS))
 
     def loss_fn(params, batch):
-        return ae.reconstruction_loss(graphdef, params, batch)
+        return objectives.loss(objective, graphdef, params, batch)
 
     @jax.jit
-    def train_step(params, opt_state, batch: Float[Array, "b h w ..."], key: jax.Array):
+    def train_step(params, opt_state, batch: Float[Array, "b ..."], key: jax.Array):
         if batch_sharding is not None:
             batch = jax.lax.with_sharding_constraint(batch, batch_sharding)
         if augment is not None:
-            batch = augment_batch(key, batch, augment)
+            batch = objectives.augment(key, batch, augment, objective)
         loss, grads = jax.value_and_grad(loss_fn)(params, batch)
         updates, opt_state = tx.update(grads, opt_state, params)
         # The augmented batch stays on the device unless the caller fetches it (TensorBoard
@@ -132,32 +135,33 @@ def take_batch(data: Array, order: Array, index: Array, batch_size: int) -> Arra
 
 
 @functools.lru_cache(maxsize=32)  # per architecture: season pairs share compilations
-def make_eval_loss(graphdef, batch_size: int) -> Callable:
-    """Mean reconstruction loss over any number of images, in fixed-size batches."""
+def make_eval_loss(graphdef, batch_size: int, objective: str = "reconstruct") -> Callable:
+    """The objective's mean loss over any number of examples, in fixed-size batches."""
 
     @jax.jit
-    def per_image(params, batch):
-        recon = nnx.merge(graphdef, params)(batch)
-        return jnp.mean((recon - batch) ** 2, axis=tuple(range(1, batch.ndim)))
+    def per_example(params, batch):
+        return objectives.per_example_loss(objective, nnx.merge(graphdef, params), batch)
 
-    def eval_loss(params, images: np.ndarray) -> float:
+    def eval_loss(params, examples: np.ndarray) -> float:
         losses = []
-        for start in range(0, len(images), batch_size):
-            chunk = images[start : start + batch_size]
+        for start in range(0, len(examples), batch_size):
+            chunk = examples[start : start + batch_size]
             pad = batch_size - len(chunk)  # pad the tail: one compiled shape
             padded = np.concatenate([chunk, np.repeat(chunk[-1:], pad, axis=0)]) if pad else chunk
-            losses.append(np.asarray(per_image(params, padded))[: len(chunk)])
+            losses.append(np.asarray(per_example(params, padded))[: len(chunk)])
         return float(np.mean(np.concatenate(losses)))
 
     return eval_loss
 
 
-def check_batch_splits(batch_size: int, mesh: Mesh | None) -> None:
-    """Data-parallel training splits every batch evenly over the mesh's devices."""
-    n_devices = sharding.mesh_size(mesh)
-    if batch_size % n_devices:
-        raise UserError(f"train.batch_size={batch_size} does not split over {n_devices} "
-                        f"devices: use a multiple of {n_devices}, or set mesh.devices")
+def check_batch_splits(batch_size: int, mesh: Mesh | None, images_per_example: int = 1) -> None:
+    """Data-parallel training splits every batch's examples evenly over the mesh's devices
+    (a cross_season example is a place's two images)."""
+    step = sharding.mesh_size(mesh) * images_per_example
+    if batch_size % step:
+        raise UserError(f"train.batch_size={batch_size} does not split over "
+                        f"{sharding.mesh_size(mesh)} devices: use a multiple of {step}, or "
+                        "set mesh.devices")
 
 
 def split_validation(
@@ -188,33 +192,51 @@ class Trainer(NamedTuple):
     """One model's compiled steps and the settings it trains with."""
 
     graphdef: Any  # the architecture: ae.make_encode(graphdef)(params, images)
+    objective: str  # vpr_jax.encoders.objectives: what the model learns to output
     train_step: Callable  # (params, opt_state, batch, key) -> (params, opt_state, metrics)
-    eval_loss: Callable  # (params, images) -> mean reconstruction loss
+    eval_loss: Callable  # (params, examples) -> the objective's mean loss
     reconstruct: Callable  # (params, images) -> images
     settings: TrainConfig
-    batch_size: int
+    batch_size: int  # examples per step: images, or places for cross_season
     steps_per_epoch: int  # the tail that fills no batch is dropped: one compiled shape
 
 
 def make_trainer(
     spec: ae.Spec, image_shape: tuple[int, int], n_train: int, key: jax.Array,
-    settings: TrainConfig, mesh: Mesh | None = None,
+    settings: TrainConfig, mesh: Mesh | None = None, objective: str = "reconstruct",
 ) -> tuple[Trainer, TrainState]:
-    """The model's compiled steps and its initial state (weights drawn from ``key``)."""
+    """The model's compiled steps and its initial state (weights drawn from ``key``).
+    ``n_train`` counts examples; a step sees ``train.batch_size`` images, so a cross_season
+    step takes half as many places."""
     graphdef, params = ae.build(spec, jax.random.fold_in(key, 0), image_shape)
     tx = make_optimizer(settings)
-    batch_size = min(settings.batch_size, n_train)
+    per_step = max(1, settings.batch_size // objectives.examples_per_image(objective))
+    batch_size = min(per_step, n_train)
     augment = AugmentConfig() if settings.augment else None
-    trainer = Trainer(graphdef, make_train_step(graphdef, tx, augment, mesh),
-                      make_eval_loss(graphdef, batch_size), ae.make_reconstruct(graphdef),
-                      settings, batch_size, n_train // batch_size)  # fmt: skip
+    trainer = Trainer(graphdef, objective, make_train_step(graphdef, tx, augment, mesh, objective),
+                      make_eval_loss(graphdef, batch_size, objective),
+                      ae.make_reconstruct(graphdef), settings, batch_size,
+                      n_train // batch_size)  # fmt: skip
     return trainer, TrainState(params, tx.init(params), params, math.inf, 0, 0, 0, 0.0)
 
 
-def checkpoint_meta(spec: ae.Spec, image_shape: tuple[int, int], identity: dict | None) -> dict:
-    """What a checkpoint must hold to be reused: the same model, image shape and identity."""
+# Metadata keys added since checkpoints were first written, with what the old ones meant.
+_OLD_META = {"objective": "reconstruct"}
+
+
+def checkpoint_meta(spec: ae.Spec, image_shape: tuple[int, int], identity: dict | None,
+                    objective: str = "reconstruct") -> dict:
+    """What a checkpoint must hold to be reused: the same model, image shape, objective and
+    identity."""
     return {"spec": ae.spec_to_json(spec), "image_shape": list(image_shape),
-            "identity": plain(identity or {})}  # fmt: skip
+            "objective": objective, "identity": plain(identity or {})}  # fmt: skip
+
+
+def _known_spec(data) -> dict | None:
+    try:
+        return ae.spec_to_json(ae.spec_from_json(data))
+    except (TypeError, ValueError):
+        return None  # not a model this version knows: it differs from any spec
 
 
 def init_or_restore(
@@ -227,6 +249,8 @@ def init_or_restore(
     if checkpoint_dir is None or not checkpoints.has_checkpoint(checkpoint_dir):
         return fresh, None
     saved = checkpoints.read_meta(checkpoint_dir)
+    # A spec written before a field existed means that field's default (spec_from_json).
+    saved = {**_OLD_META, **saved, "spec": _known_spec(saved.get("spec"))}
     if any(saved.get(k) != v for k, v in meta.items()):
         raise UserError(f"{checkpoint_dir} holds a model trained on other data or settings: "
                         "delete that folder, or set train.checkpoint_dir=PATH to keep both")
@@ -254,8 +278,9 @@ def train_epoch(
             )
             losses.append(metrics["loss"])  # on the device until the epoch ends: no waits
             if log is not None and epoch == 1 and s == 0 and trainer.settings.augment:
-                shown = sharding.to_host(metrics["inputs"])
-                log.images("inputs/augmented", _examples(shown, 8), state.step + 1)
+                shown, _ = objectives.inputs_and_targets(
+                    trainer.objective, sharding.to_host(metrics["inputs"]))
+                log.images("inputs/augmented", _examples(np.asarray(shown), 8), state.step + 1)
             bar.advance()
     losses = np.asarray(jnp.stack(losses)) if losses else np.zeros(0)
     if log is not None:
@@ -284,12 +309,18 @@ def end_epoch(state: TrainState, val_loss: float, settings: TrainConfig
 
 
 def log_epoch(trainer: Trainer, state: TrainState, losses: np.ndarray, val_loss: float,
-              val_images: np.ndarray, log: TrainingLog, name: str) -> None:
-    """The validation loss, six validation images over their reconstructions, one line."""
+              val_examples: np.ndarray, log: TrainingLog, name: str) -> None:
+    """The validation loss, six validation examples in rows of input | target | output
+    (reconstruct: the images over their reconstructions; cross_season: both seasons, their
+    mean, the output for each season), one line."""
     log.scalar("loss/validation", val_loss, state.step)
-    shown = _examples(val_images, 6)
-    recon = np.asarray(trainer.reconstruct(state.params, shown))
-    log.images("reconstructions/validation", np.concatenate([shown, recon]), state.step)
+    shown = _examples(val_examples, 6)
+    inputs, targets = (np.asarray(x) for x in
+                       objectives.inputs_and_targets(trainer.objective, shown))  # fmt: skip
+    outputs = np.asarray(trainer.reconstruct(state.params, inputs))
+    rows = [inputs, outputs] if trainer.objective == "reconstruct" else \
+        [inputs, targets[: len(shown)], outputs]
+    log.images("reconstructions/validation", np.concatenate(rows), state.step)
     train_loss = float(np.mean(losses)) if len(losses) else math.nan
     best = "  (best)" if state.bad_epochs == 0 else ""
     log.line(f"{name} epoch {state.epoch}/{trainer.settings.epochs}: train loss "
@@ -319,22 +350,24 @@ def fit_autoencoder(
     log: TrainingLog | None = None,
     name: str = "auto-encoder",
     mesh: Mesh | None = None,
+    objective: str = "reconstruct",
 ) -> TrainResult:
     """Train (or resume, or restore) one auto-encoder; returns its best parameters.
 
-    With ``checkpoint_dir``, an epoch is committed there once ``checkpoint_every_s`` seconds
-    passed since the last save, and the last epoch always is: a finished model is restored,
-    an unfinished one resumes after its last saved epoch. ``identity`` (JSON data) must
-    match the checkpoint's, so a model of other data or settings is never reused. With a
-    ``mesh`` each batch is split across its devices (see ``make_train_step``).
+    ``train_images`` and ``val_images`` are the ``objective``'s examples (images, or aligned
+    pairs ``(n, 2, h, w)``: ``objectives.training_data``). With ``checkpoint_dir`` an epoch
+    is committed once ``checkpoint_every_s`` seconds passed since the last save, and the
+    last epoch always is: a finished model is restored, an unfinished one resumes after its
+    last saved epoch. ``identity`` must match the checkpoint's, so a model of other data or
+    settings is never reused. With a ``mesh`` each batch is split across its devices.
     """
     start = time.perf_counter()
     settings = settings or TrainConfig()
     train_images = np.asarray(train_images, np.float32)
     val_images = np.asarray(val_images, np.float32)
-    shape = train_images.shape[1:3]
-    trainer, fresh = make_trainer(spec, shape, len(train_images), key, settings, mesh)
-    meta = checkpoint_meta(spec, shape, identity)
+    shape = train_images.shape[2:4] if objective == "cross_season" else train_images.shape[1:3]
+    trainer, fresh = make_trainer(spec, shape, len(train_images), key, settings, mesh, objective)
+    meta = checkpoint_meta(spec, shape, identity, objective)
     state, saved = init_or_restore(fresh, checkpoint_dir, meta, log, name)
     if saved is not None and saved["done"]:
         return TrainResult(trainer.graphdef, state.best_params, state.epoch, state.step,

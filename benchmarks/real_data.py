@@ -1,0 +1,90 @@
+"""Every method on real frames, in one table: raw, PCA, diff_pca, ICA, LDA, and the FAE and
+CAE with each objective, single images (ds = 1) and sequences of ten (ds = 10).
+
+    python benchmarks/real_data.py DATA_ROOT [--seasons summer,winter] [KEY=VALUE ...]
+
+DATA_ROOT holds one folder of frame-aligned images per season (``data.source=folders``:
+any size, the frame number in each file name), e.g. ``../shared/data/nordland_dev`` with
+``summer/`` and ``winter/``. It runs the sweep (``python -m experiments.sweep``) with the
+seed's split scaled to 1,788 places by default (1,200 training places, a 10-frame gap, 450
+test places, a match within +-1 frame), the first season as the database and the second as
+the queries, into ``--logdir`` (default ``runs/real_data``; rerun to resume, or to add
+objectives or sequence lengths), then prints one row per method and objective:
+the removed-PC count with the best single-image recall@1 (chosen on the test queries:
+optimistic), recall@1, AUC-PR, R@100P and recall@10 of single images, recall@1 of
+sequences of ten, and the fit's seconds. Any further ``KEY=VALUE`` goes to the sweep as
+it is (e.g. ``fae.epochs=100 train.augment=false``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from vpr_jax.config import SWEEPS_REMOVED_PCS  # noqa: E402
+from vpr_jax.results import read_results  # noqa: E402
+
+ORDER = ("raw", "pca", "diff_pca", "ica", "lda", "fae", "cae")
+
+
+def sweep_args(args: argparse.Namespace) -> list[str]:
+    seasons = [s.strip() for s in args.seasons.split(",")]
+    if len(seasons) != 2:
+        raise SystemExit(f"--seasons={args.seasons}: name two seasons, database first")
+    return ["data.source=folders", f"data.root={Path(args.root).expanduser().resolve()}",
+            f"data.seasons=[{','.join(seasons)}]", f"season_pairs={'-'.join(seasons)}",
+            f"split.n_train={args.n_train}", f"split.n_test={args.n_test}",
+            f"split.gap={args.gap}", f"tolerance={args.tolerance}", "sequence.enabled=true",
+            "sequence.ds=[1,10]", f"logdir={args.logdir}", *args.overrides]  # fmt: skip
+
+
+def table(rows) -> str:
+    """One line per method and objective, at its best single-image removed-PC count."""
+    lines = ["| method | objective | k | recall@1 | AUC-PR | R@100P | recall@10 | "
+             "recall@1, ds=10 | fit s |", "|---|---|---|---|---|---|---|---|---|"]
+    groups = sorted({(r.method, r.objective) for r in rows},
+                    key=lambda g: (ORDER.index(g[0]) if g[0] in ORDER else len(ORDER), g[1]))
+    for method, objective in groups:
+        single = [r for r in rows if (r.method, r.objective, r.ds) == (method, objective, 1)]
+        if not single:
+            continue
+        best = max(single, key=lambda r: (r.recall_at_1, -r.removed_pcs))
+        seq = [r for r in rows if (r.method, r.objective, r.removed_pcs, r.ds)
+               == (method, objective, best.removed_pcs, 10)]  # fmt: skip
+        k = str(best.removed_pcs) if method in SWEEPS_REMOVED_PCS else ""
+        ds10 = f"{seq[0].recall_at_1:.3f}" if seq else ""
+        lines.append(f"| {method} | {objective} | {k} | {best.recall_at_1:.3f} | "
+                     f"{best.auc_pr:.3f} | {best.recall_at_100_precision:.3f} | "
+                     f"{best.recall_at_10:.3f} | {ds10} | {best.fit_seconds:.1f} |")
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("root", help="folder with one folder of aligned frames per season")
+    parser.add_argument("--seasons", default="summer,winter", help="database,query")
+    parser.add_argument("--n-train", type=int, default=1200)
+    parser.add_argument("--n-test", type=int, default=450)
+    parser.add_argument("--gap", type=int, default=10)
+    parser.add_argument("--tolerance", type=int, default=1)
+    parser.add_argument("--logdir", default="runs/real_data")
+    parser.add_argument("overrides", nargs="*", help="more key=value for the sweep")
+    args = parser.parse_intermixed_args()  # key=value may follow the options
+    args.logdir = str(Path(args.logdir).expanduser().resolve())  # the sweep runs in REPO
+    command = [sys.executable, "-m", "experiments.sweep", *sweep_args(args)]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.run(command, cwd=REPO, env=env)
+    if proc.returncode:
+        return proc.returncode
+    print(table(read_results(Path(args.logdir) / "results.csv")))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,86 @@
+"""What an auto-encoder learns to do: the training objectives, as per-example losses.
+
+- ``reconstruct`` (the seed's): an image -> itself. Training data: images ``(n, h, w)``.
+- ``cross_season``: either season's image of a place -> the place's season mean
+  ``(a_i + b_i) / 2``. Training data: the aligned pairs of the training places, ``(n, 2, h,
+  w)`` (row i holds place i in both seasons). The output may not depend on the season, so a
+  code that carries the season buys the decoder nothing, and the code of a place becomes
+  the same for its two seasons wherever the decoder needs it. Asking each season's image
+  for the other's (a swap) would do the opposite: the code would have to carry the season
+  to know which image to produce.
+
+Both are mean squared errors per example (an image, or a place: the mean of its two
+seasons' errors), so training means them over a batch and validation over the held-out
+tail the same way. Augmentation draws one transform per example: a place's two images and
+its target move together.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from vpr_jax.data.augment import AugmentConfig, augment_batch
+from vpr_jax.encoders import autoencoders as ae
+
+OBJECTIVES = ("reconstruct", "cross_season")
+
+
+def _check(objective: str) -> None:
+    if objective not in OBJECTIVES:
+        raise ValueError(f"unknown objective {objective!r}: use one of {', '.join(OBJECTIVES)}")
+
+
+def training_data(objective: str, images: np.ndarray, n_seasons: int = 2) -> np.ndarray:
+    """What an objective trains on, from the sweep's training images (``n_seasons`` aligned
+    stretches back to back): the images themselves, or the places' pairs ``(n, 2, h, w)``."""
+    _check(objective)
+    if objective == "reconstruct":
+        return np.asarray(images, np.float32)
+    if n_seasons != 2 or len(images) % 2:
+        raise ValueError("cross_season needs the aligned training places of two seasons")
+    first, second = np.split(np.asarray(images, np.float32), 2)
+    return np.stack([first, second], axis=1)
+
+
+def examples_per_image(objective: str) -> int:
+    """Images one training example holds: a batch of b images takes b / this examples."""
+    _check(objective)
+    return 2 if objective == "cross_season" else 1
+
+
+def augment(key: PRNGKeyArray, batch: Array, cfg: AugmentConfig, objective: str) -> Array:
+    """One random transform per example; a pair's two images share theirs."""
+    if objective == "reconstruct":
+        return augment_batch(key, batch, cfg)
+    pairs_last = jnp.moveaxis(batch, 1, -1)  # (b, h, w, 2): the pair as channels
+    return jnp.moveaxis(augment_batch(key, pairs_last, cfg), -1, 1)
+
+
+def inputs_and_targets(objective: str, batch: Array) -> tuple[Array, Array]:
+    """(images the model sees, what it should output for each), both ``(m, h, w ...)``."""
+    if objective == "reconstruct":
+        return batch, batch
+    a, b = batch[:, 0], batch[:, 1]
+    mean = (a + b) / 2
+    return jnp.concatenate([a, b]), jnp.concatenate([mean, mean])
+
+
+def per_example_loss(objective: str, model: Callable, batch: Array) -> Float[Array, " n"]:
+    """Mean squared error of ``model`` (images -> images) per example of ``batch``."""
+    inputs, targets = inputs_and_targets(objective, batch)
+    errors = jnp.mean((model(inputs) - targets) ** 2, axis=tuple(range(1, inputs.ndim)))
+    if objective == "reconstruct":
+        return errors
+    return (errors[: len(batch)] + errors[len(batch) :]) / 2  # a place: both seasons
+
+
+def loss(objective: str, graphdef, params, batch: Array) -> Float[Array, ""]:
+    """The training loss of a batch: the mean of its per-example losses."""
+    if objective == "reconstruct":  # the same mean, summed as the seed's loss always was
+        return ae.reconstruction_loss(graphdef, params, batch)
+    return jnp.mean(per_example_loss(objective, nnx.merge(graphdef, params), batch))
