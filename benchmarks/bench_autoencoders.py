@@ -36,7 +36,7 @@ from common import seed_route, timed
 from vpr_jax.config import CAEConfig, TrainConfig
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
-from vpr_jax.encoders.train import make_optimizer, make_train_step, split_validation
+from vpr_jax.encoders.train import make_optimizer, make_train_step
 
 
 def _cae(model: str, **changes) -> ae.CAESpec:
@@ -145,8 +145,9 @@ def main() -> None:
     train, db, query = seed_route()
     shape = ae.IMAGE_SHAPE
     db, query = db.reshape(len(db), *shape), query.reshape(len(query), *shape)
-    train_images, _ = split_validation(train.reshape(len(train), *shape), 2,
-                                       TrainConfig().val_fraction)  # fmt: skip
+    # The seed's 4,500 training images: each season's stretch less its last tenth.
+    seasons = np.split(train.reshape(len(train), *shape), 2)
+    train_images = np.concatenate([s[: round(0.9 * len(s))] for s in seasons])
     device = jax.devices()[0]
     print(
         f"jax {jax.__version__} on {device.platform} ({device.device_kind}); "

@@ -23,6 +23,7 @@ import warnings
 import jax
 import numpy as np
 from common import seed_route, timed
+from peers import native_blas_process
 from sklearn.decomposition import FastICA
 
 from vpr_jax.encoders import ica
@@ -55,6 +56,7 @@ def known_sources(n: int, d: int, c: int, seed: int = 0) -> tuple[np.ndarray, np
 
 
 def main() -> None:
+    native_blas_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=2, help="warm runs of ours (median)")
     parser.add_argument("--components", default="64,256", help="n_components to measure")

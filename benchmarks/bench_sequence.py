@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from common import ratio_row as row
 from common import timed
+from peers import native_blas_process
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests/ holds the peer
 from tests.sequence_reference import sequence_top_k_numpy  # noqa: E402
@@ -64,6 +65,7 @@ def compare(name: str, queries, database, ds: int, repeats: int) -> None:
 
 
 def main() -> None:
+    native_blas_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--ds", type=int, default=10)

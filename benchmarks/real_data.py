@@ -7,7 +7,8 @@ DATA_ROOT holds one folder of frame-aligned images per season (``data.source=fol
 any size, the frame number in each file name), e.g. ``../shared/data/nordland_dev`` with
 ``summer/`` and ``winter/``. It runs the sweep (``python -m experiments.sweep``) with the
 seed's split scaled to 1,788 places by default (1,200 training places, a 10-frame gap, 450
-test places, a match within +-1 frame), the first season as the database and the second as
+test places, a match within +-1 frame; the last 120 training places validate, after another
+10-frame gap), the first season as the database and the second as
 the queries, into ``--logdir`` (default ``runs/real_data``; rerun to resume, or to add
 objectives or sequence lengths), then prints one row per method and objective:
 the removed-PC count with the best single-image recall@1 (chosen on the test queries:
@@ -28,7 +29,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from vpr_jax.config import SWEEPS_REMOVED_PCS  # noqa: E402
-from vpr_jax.results import read_results  # noqa: E402
+from vpr_jax.results import read_results, selected_rows  # noqa: E402
 
 ORDER = ("raw", "pca", "diff_pca", "ica", "lda", "fae", "cae")
 
@@ -45,23 +46,32 @@ def sweep_args(args: argparse.Namespace) -> list[str]:
 
 
 def table(rows) -> str:
-    """One line per method and objective, at its best single-image removed-PC count."""
-    lines = ["| method | objective | k | recall@1 | AUC-PR | R@100P | recall@10 | "
-             "recall@1, ds=10 | fit s |", "|---|---|---|---|---|---|---|---|---|"]
+    """One line per method and objective: the removed-PC count chosen on the validation
+    places (``selected``), its test figures with the recall@1 interval, the selected row
+    of sequences of ten, and the count chosen on the test queries (optimistic)."""
+    lines = ["| method | objective | k | recall@1 [95% CI] | AUC-PR | R@100P | recall@10 | "
+             "recall@1, ds=10 | optimistic k: recall@1 | fit s |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     groups = sorted({(r.method, r.objective) for r in rows},
                     key=lambda g: (ORDER.index(g[0]) if g[0] in ORDER else len(ORDER), g[1]))
+    chosen = {(r.method, r.objective, r.ds): r for r in selected_rows(rows)}
     for method, objective in groups:
         single = [r for r in rows if (r.method, r.objective, r.ds) == (method, objective, 1)]
         if not single:
             continue
+        sel = chosen[(method, objective, 1)]
         best = max(single, key=lambda r: (r.recall_at_1, -r.removed_pcs))
-        seq = [r for r in rows if (r.method, r.objective, r.removed_pcs, r.ds)
-               == (method, objective, best.removed_pcs, 10)]  # fmt: skip
-        k = str(best.removed_pcs) if method in SWEEPS_REMOVED_PCS else ""
-        ds10 = f"{seq[0].recall_at_1:.3f}" if seq else ""
-        lines.append(f"| {method} | {objective} | {k} | {best.recall_at_1:.3f} | "
-                     f"{best.auc_pr:.3f} | {best.recall_at_100_precision:.3f} | "
-                     f"{best.recall_at_10:.3f} | {ds10} | {best.fit_seconds:.1f} |")
+        seq = chosen.get((method, objective, 10))
+        axis = method in SWEEPS_REMOVED_PCS
+        k = str(sel.removed_pcs) if axis else ""
+        ds10 = (f"{seq.recall_at_1:.3f}" + (f" (k={seq.removed_pcs})" if axis else "")
+                if seq else "")  # fmt: skip
+        optimistic = f"{best.removed_pcs}: {best.recall_at_1:.3f}" if axis else ""
+        lines.append(f"| {method} | {objective} | {k} | {sel.recall_at_1:.3f} "
+                     f"[{sel.recall_at_1_ci_low:.3f}, {sel.recall_at_1_ci_high:.3f}] | "
+                     f"{sel.auc_pr:.3f} | {sel.recall_at_100_precision:.3f} | "
+                     f"{sel.recall_at_10:.3f} | {ds10} | {optimistic} | "
+                     f"{sel.fit_seconds:.1f} |")
     return "\n".join(lines)
 
 

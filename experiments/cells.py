@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from jax.sharding import Mesh
 
+from vpr_jax.bootstrap import cell_intervals
 from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig
 from vpr_jax.data import Route
 from vpr_jax.data.splits import Split
@@ -46,29 +47,40 @@ def pair_data(route: Route, split: Split, db: str, query: str, database: str) ->
         query=images[query][split.test],
         db_ids=route.frame_ids if everything else route.frame_ids[split.test],
         query_ids=route.frame_ids[split.test],
+        val=np.concatenate([images[db][split.val], images[query][split.val]]),
+        val_ids=route.frame_ids[split.val],
     )
 
 
+def _part(desc: Descriptors, pair: PairData, part: str):
+    """(queries, database, query ids, database ids) of the test or the validation places."""
+    if part == "test":
+        return desc.query, desc.db, pair.query_ids, pair.db_ids
+    return desc.val_query, desc.val_db, pair.val_ids, pair.val_ids
+
+
 def match(desc: Descriptors, pair: PairData, ds: int, counts: tuple[int, ...],
-          cfg: SweepConfig, mesh: Mesh | None) -> list[TopK]:
+          cfg: SweepConfig, mesh: Mesh | None, part: str = "test") -> list[TopK]:
     """The top-K matches of every query for each removed-PC count in ``counts`` (counts of
-    ``desc``), in that order.
+    ``desc``), in that order; ``part="val"``: of the validation queries against the
+    validation database.
 
     ds = 1: plain cosine, one blockwise pass for all counts (suffix starts), split over the
     mesh. ds > 1: sequence matching (``vpr_jax.sequence``) of ds frames on each count's
     descriptor suffix, on one device.
     """
     start_of = dict(zip(desc.removed_pcs, desc.starts, strict=True))
+    query, db, query_ids, db_ids = _part(desc, pair, part)
     if ds == 1:
-        scores, idx = top_k_matches(desc.query, desc.db, TOP_K,
+        scores, idx = top_k_matches(query, db, TOP_K,
                                     starts=tuple(start_of[k] for k in counts),
                                     block_size=cfg.matching.block_size, mesh=mesh)  # fmt: skip
         return list(zip(scores, idx, strict=True))
     seq = cfg.sequence
     return [
         sequence_top_k_cosine(
-            desc.query[:, start_of[k]:], desc.db[:, start_of[k]:], ds,
-            query_ids=pair.query_ids, db_ids=pair.db_ids,
+            query[:, start_of[k]:], db[:, start_of[k]:], ds,
+            query_ids=query_ids, db_ids=db_ids,
             vels=velocities(seq.v_min, seq.v_max, seq.v_step),
             contrast_window=seq.contrast_window, uniqueness_window=seq.uniqueness_window,
             k=TOP_K,
@@ -106,26 +118,41 @@ def _write_run(logdir: Path, name: str, cfg: SweepConfig, pair: PairData, desc: 
         basis_images=desc.basis[desc.removed_pcs.index(k)],
         basis_tag=f"basis/{desc.basis_name}",
     )  # fmt: skip
-    np.savez(staging / "curve.npz", precision=ev.pr_precision, recall=ev.pr_recall)
+    np.savez(staging / "curve.npz", precision=ev.pr_precision, recall=ev.pr_recall,
+             best_scores=ev.best_scores, best_correct=ev.best_correct, has_match=ev.has_match)
     final = logdir / name
     final.parent.mkdir(parents=True, exist_ok=True)
     os.replace(staging, final)
 
 
+def block_length(cfg: SweepConfig, ds: int) -> int:
+    """Queries per bootstrap block: ``bootstrap.block_length``, at least the sequence."""
+    return max(cfg.bootstrap.block_length, ds)
+
+
 def save_cell(logdir: Path, cfg: SweepConfig, pair: PairData, desc: Descriptors, k: int,
-              ds: int, top: TopK) -> ResultRow:
-    """Evaluate one cell's matches, write its TensorBoard run, then its results.csv row (the
-    row last: a run without a row is redone by a resumed sweep). Returns the row."""
+              ds: int, top: TopK, val_top: TopK) -> ResultRow:
+    """Evaluate one cell's matches (``top``: the test queries', ``val_top``: the validation
+    queries'), write its TensorBoard run, then its results.csv row (the row last: a run
+    without a row is redone by a resumed sweep). Returns the row."""
     name = run_name(pair.name, desc.method, k, ds, desc.objective)
     shutil.rmtree(logdir / name, ignore_errors=True)  # left by a crash before its row
     ev = evaluate_top_k(*top, pair.query_ids, pair.db_ids, cfg.tolerance,
                         pr_convention=cfg.pr_convention)  # fmt: skip
+    val = evaluate_top_k(*val_top, pair.val_ids, pair.val_ids, cfg.tolerance,
+                         pr_convention=cfg.pr_convention)  # fmt: skip
+    ci = cell_intervals(ev.best_scores, ev.best_correct, ev.has_match,
+                        block_length=block_length(cfg, ds), resamples=cfg.bootstrap.resamples,
+                        seed=cfg.seed, pr_convention=cfg.pr_convention)  # fmt: skip
     _write_run(logdir, name, cfg, pair, desc, k, ds, top, ev)
     row = ResultRow(
         season_pair=pair.name, db_season=pair.db_season, query_season=pair.query_season,
         method=desc.method, objective=desc.objective, removed_pcs=k, ds=ds,
         n_train=len(pair.train),
         n_test=len(pair.query), tolerance=cfg.tolerance, **ev.scalars(),
+        recall_at_1_ci_low=ci.recall_at_1.low, recall_at_1_ci_high=ci.recall_at_1.high,
+        auc_pr_ci_low=ci.auc_pr.low, auc_pr_ci_high=ci.auc_pr.high,
+        val_recall_at_1=val.recall_at_1, selected=0,
         fit_seconds=desc.fit_seconds, encode_ms_per_image=desc.encode_ms_per_image,
         n_iter=desc.n_iter, converged=int(desc.converged), seed=cfg.seed, run=name,
     )  # fmt: skip

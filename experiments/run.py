@@ -20,12 +20,14 @@ from omegaconf import OmegaConf
 
 from experiments.cells import (
     INCOMPLETE,
+    block_length,
     log_cell,
     match,
     pair_data,
     save_cell,
 )
 from experiments.plan import Plan
+from vpr_jax.bootstrap import Difference, paired_recall_difference
 from vpr_jax.config import SWEEPS_REMOVED_PCS, MeshConfig, SweepConfig, to_dict
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import check_batch_splits
@@ -48,9 +50,11 @@ from vpr_jax.results import (
     CellKey,
     ResultRow,
     atomic_write_text,
+    baseline_of,
     cell_key,
     markdown_table,
     read_results,
+    selected_rows,
 )
 from vpr_jax.sharding import make_mesh, mesh_size
 from vpr_jax.tb import TrainingRun, write_experiment_config
@@ -101,12 +105,13 @@ def method_context(cfg: SweepConfig, logdir: Path, out: Path, pair: str, log: Lo
     )
 
 
-def write_summaries(logdir: Path) -> None:
+def write_summaries(logdir: Path, cfg: SweepConfig) -> None:
     """results.md and the figures, from every row of results.csv (this run's and earlier)."""
     rows = read_results(logdir / "results.csv")
     if not rows:
         return
-    atomic_write_text(logdir / "results.md", markdown_table(rows))
+    atomic_write_text(logdir / "results.md",
+                      markdown_table(rows, differences_to_pca(rows, logdir, cfg)))
     figures = logdir / "figures"
     figures.mkdir(exist_ok=True)
 
@@ -118,6 +123,31 @@ def write_summaries(logdir: Path) -> None:
     correct_matches_figure(rows, figures / "correct_matches.png")
     if len({r.ds for r in rows}) > 1:
         recall_vs_ds_figure(rows, figures / "recall_vs_ds.png")
+
+
+def differences_to_pca(rows: list[ResultRow], logdir: Path, cfg: SweepConfig
+                       ) -> dict[str, Difference]:
+    """Per selected row (by run), recall@1 minus its pair's selected PCA row's, paired on
+    the same queries (``vpr_jax.bootstrap``); rows whose runs predate the per-query record
+    in curve.npz are left out."""
+    selected = selected_rows(rows)
+
+    def correct(row):
+        with np.load(logdir / row.run / "curve.npz") as z:
+            return z["best_correct"] if "best_correct" in z else None
+
+    out = {}
+    for row in selected:
+        base = baseline_of(row, selected)
+        if row.method == "pca" or base is None:
+            continue
+        mine, theirs = correct(row), correct(base)
+        if mine is None or theirs is None or mine.shape != theirs.shape:
+            continue
+        out[row.run] = paired_recall_difference(
+            mine, theirs, block_length=block_length(cfg, row.ds),
+            resamples=cfg.bootstrap.resamples, seed=cfg.seed)  # fmt: skip
+    return out
 
 
 def run_cells(plan: Plan, log: RunLog) -> Path:
@@ -200,7 +230,7 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                         finished += 1
                         bar.advance()
                         log_cell(log, f"[{finished}/{len(cells)}]", row, warning)
-    write_summaries(out)
+    write_summaries(out, cfg)
     log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
         f"view with: tensorboard --logdir {logdir}")
     return logdir
@@ -211,19 +241,23 @@ def _save_descriptors(out: Path, cfg: SweepConfig, data: PairData, desc: Descrip
                       ) -> Iterator[tuple[ResultRow, str | None]]:
     """Match, evaluate and save every cell of these descriptors still to do, count by count
     and ds by ds; yields (row, the descriptors' warning with their first cell only)."""
-    single = None  # ds = 1 matches of every count, from one pass
+    single = {}  # per part, ds = 1 matches of every count, from one pass
     warning = desc.warning
+
+    def matches(k: int, ds: int, part: str):
+        if ds > 1:
+            return match(desc, data, ds, (k,), cfg, mesh, part)[0]
+        if part not in single:
+            single[part] = dict(zip(desc.removed_pcs,
+                                    match(desc, data, 1, desc.removed_pcs, cfg, mesh, part),
+                                    strict=True))  # fmt: skip
+        return single[part][k]
+
     for k in desc.removed_pcs:
         for ds in cfg.sequence_lengths:
             if (data.name, desc.method, desc.objective, k, ds) not in todo:
                 continue
-            if ds == 1:
-                if single is None:
-                    single = dict(zip(desc.removed_pcs,
-                                      match(desc, data, 1, desc.removed_pcs, cfg, mesh),
-                                      strict=True))  # fmt: skip
-                top = single[k]
-            else:
-                (top,) = match(desc, data, ds, (k,), cfg, mesh)
-            yield save_cell(out, cfg, data, desc, k, ds, top), warning
+            row = save_cell(out, cfg, data, desc, k, ds, matches(k, ds, "test"),
+                            matches(k, ds, "val"))  # fmt: skip
+            yield row, warning
             warning = None

@@ -76,3 +76,12 @@ def read_run(path: Path) -> EventAccumulator:
     ea = EventAccumulator(str(path), size_guidance={"scalars": 0, "tensors": 0, "images": 0})
     ea.Reload()
     return ea
+
+
+def tail_validation(images, n_groups: int, fraction: float):
+    """(train, val): the last ``fraction`` of each of ``n_groups`` equal consecutive groups
+    held out, as the sweep's split holds out the end of each season's training stretch."""
+    groups = np.split(np.asarray(images), n_groups)
+    n_val = max(1, int(round(len(groups[0]) * fraction)))
+    return (np.concatenate([g[:-n_val] for g in groups]),
+            np.concatenate([g[-n_val:] for g in groups]))

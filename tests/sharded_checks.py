@@ -35,7 +35,8 @@ def main() -> None:
 
     # PCA: 1,003 samples (padded to 1,008 over 8 devices), blocks of 64 rows per device.
     x = rng.random((1003, 300), np.float32)
-    one, split = pca.fit_pca(x, 20, block_rows=64), pca.fit_pca(x, 20, block_rows=64, mesh=mesh)
+    one = pca.fit_pca(x, 20, "covariance", block_rows=64)
+    split = pca.fit_pca(x, 20, "covariance", block_rows=64, mesh=mesh)
     out["pca_components"] = max_diff(one.components, split.components)
     ratio = np.asarray(one.explained_variance) / np.asarray(split.explained_variance)
     out["pca_variance_rel"] = float(np.max(np.abs(ratio - 1)))

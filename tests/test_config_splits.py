@@ -52,15 +52,29 @@ def test_identity_ignores_keys_that_only_add_cells():
 def test_count_split_has_gap_in_original_frames():
     ids = np.arange(0, 5000, 10)  # frame step 10
     split = make_split(ids, SplitConfig(n_train=100, n_test=50, gap=100))
-    assert len(split.train) == 100 and len(split.test) == 50
-    assert ids[split.test[0]] - ids[split.train[-1]] > 100
+    # the stretch of 100: the last 10 validate; 10 frames (= 100 original) before them go
+    np.testing.assert_array_equal(split.val, np.arange(90, 100))
+    np.testing.assert_array_equal(split.train, np.arange(80))
+    assert len(split.test) == 50
+    assert ids[split.test[0]] - ids[split.val[-1]] > 100
+    assert ids[split.val[0]] - ids[split.train[-1]] > 100
     assert set(split.train).isdisjoint(split.test)
+
+
+def test_validation_stretch_follows_val_fraction_and_must_leave_training():
+    split = make_split(np.arange(1000), SplitConfig(n_train=500, n_test=100, gap=5,
+                                                    val_fraction=0.2))  # fmt: skip
+    np.testing.assert_array_equal(split.val, np.arange(400, 500))
+    np.testing.assert_array_equal(split.train, np.arange(395))
+    with pytest.raises(UserError, match="split.val_fraction"):
+        make_split(np.arange(1000), SplitConfig(n_train=12, n_test=100, gap=10))
 
 
 def test_fraction_split_tests_everything_after_the_gap():
     ids = np.arange(1000)
     split = make_split(ids, SplitConfig(train_fraction=0.5, gap=20))
-    np.testing.assert_array_equal(split.train, np.arange(500))
+    np.testing.assert_array_equal(split.train, np.arange(430))  # 50 validate, 20 gap
+    np.testing.assert_array_equal(split.val, np.arange(450, 500))
     np.testing.assert_array_equal(split.test, np.arange(520, 1000))
 
 
@@ -85,7 +99,11 @@ def test_olid_sections_match_a_brute_force_partition(step):
     split = make_split(frame_ids, SplitConfig(test_sections=3, n_test=115, gap=20 * step))
     train, test = _brute_force_sections(frame_ids, 3, 115, 20 * step)
     np.testing.assert_array_equal(split.test, test)
-    np.testing.assert_array_equal(split.train, train)
+    n_val = round(0.1 * len(train))  # the end of the training frames validates
+    np.testing.assert_array_equal(split.val, train[-n_val:])
+    rest = train[:-n_val]
+    fit = rest[frame_ids[rest] < frame_ids[train[-n_val]] - 20 * step]
+    np.testing.assert_array_equal(split.train, fit)
     assert len(test) == 345 and len(set(split.train) & set(split.test)) == 0
     # every training frame is more than the gap from every test frame, and nothing else drops
     assert len(train) == 3000 - 345 - 3 * 2 * 20

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from experiments.cells import pair_data
-from tests.conftest import run_cli, write_release
+from tests.conftest import run_cli, tail_validation, write_release
 from tests.test_nordland import frame_image
 from vpr_jax.config import SplitConfig, TrainConfig, parse_config
 from vpr_jax.data.augment import AugmentConfig
@@ -16,7 +16,7 @@ from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.saved import load_encoder
-from vpr_jax.encoders.train import fit_autoencoder, split_validation
+from vpr_jax.encoders.train import fit_autoencoder
 from vpr_jax.errors import UserError
 
 
@@ -35,10 +35,13 @@ def test_training_pairs_follow_frame_ids_not_positions(tmp_path):
     data = pair_data(route, split, "summer", "fall", "test")
     pairs = objectives.training_data("cross_season", data.train)
     ids = route.frame_ids[split.train]
-    assert ids[0] == 2 and len(pairs) == len(ids) == 20
-    for i, frame in enumerate(ids):
-        np.testing.assert_array_equal(pairs[i, 0], frame_image("summer", frame) / np.float32(255))
-        np.testing.assert_array_equal(pairs[i, 1], frame_image("fall", frame) / np.float32(255))
+    assert ids[0] == 2 and len(pairs) == len(ids) == 16  # 20 less 2 validating, a gap of 2
+    val_pairs = objectives.training_data("cross_season", data.val)
+    for some, frames in ((pairs, ids), (val_pairs, route.frame_ids[split.val])):
+        for i, frame in enumerate(frames):
+            for season, j in (("summer", 0), ("fall", 1)):
+                np.testing.assert_array_equal(some[i, j],
+                                              frame_image(season, frame) / np.float32(255))
 
 
 def test_a_places_two_images_get_the_same_augmentation():
@@ -69,7 +72,7 @@ def test_cross_season_scores_either_season_against_the_places_mean():
 @pytest.mark.parametrize("spec", [ae.FAESpec(hidden=16), ae.CAESpec((4, 8), (3, 3), 8, 2)])
 def test_cross_season_trains_checkpoints_and_loads(spec, tmp_path):
     images = np.concatenate([_images(120, 4), _images(120, 4) * 0.6 + 0.2])  # two "seasons"
-    train, val = split_validation(images, 2, 0.1)
+    train, val = tail_validation(images, 2, 0.1)
     settings = TrainConfig(epochs=3, batch_size=32, learning_rate=3e-3, patience=10,
                            checkpoint_every_s=0)  # fmt: skip
     pairs, val_pairs = (objectives.training_data("cross_season", x) for x in (train, val))
@@ -90,7 +93,7 @@ def test_cross_season_trains_checkpoints_and_loads(spec, tmp_path):
 
 def test_cross_season_lowers_its_validation_loss():
     route = synthetic_route(120, ("summer", "fall"), 0)
-    train, val = split_validation(np.concatenate([route.images["summer"],
+    train, val = tail_validation(np.concatenate([route.images["summer"],
                                                   route.images["fall"]]), 2, 0.1)
     pairs, val_pairs = (objectives.training_data("cross_season", x) for x in (train, val))
     spec = ae.FAESpec(hidden=16)

@@ -96,3 +96,51 @@ def test_bad_arguments():
         pca.fit_pca(x[:1])
     with pytest.raises(ValueError, match="solver"):
         pca.fit_pca(x, solver="svd")
+
+
+def _principal_sines(a, b):
+    """Sines of the principal angles between the row spaces of a and b (orthonormal rows)."""
+    cosines = np.linalg.svd(np.asarray(a, np.float64) @ np.asarray(b, np.float64).T,
+                            compute_uv=False)
+    return np.sqrt(np.clip(1 - cosines**2, 0, None))
+
+
+def test_subspace_solver_finds_the_leading_components_of_route_images():
+    from vpr_jax.data.synthetic import synthetic_route
+
+    route = synthetic_route(1500, ("summer", "winter"), seed=3)
+    x = np.concatenate([route.images["summer"], route.images["winter"]]).reshape(3000, -1)
+    full = pca.fit_pca(x, solver="covariance")
+    assert pca.choose_solver(*x.shape, "auto", 100) == "subspace"
+    fast = pca.fit_pca(x, 100)  # auto: the subspace solver for 100 of 2,048
+    assert fast.components.shape == (100, x.shape[1])
+    assert _principal_sines(fast.components[:50], full.components[:50]).max() < 1e-2
+    np.testing.assert_allclose(fast.explained_variance[:50], full.explained_variance[:50],
+                               rtol=1e-3)
+    gram = np.asarray(fast.components @ fast.components.T)
+    np.testing.assert_allclose(gram, np.eye(100), atol=1e-4)
+
+
+def test_removal_keeps_what_training_never_spanned():
+    """Fewer training images than pixels: k = 0 is raw centred pixels exactly, and every
+    k's descriptor is the image minus its projection on the first k components."""
+    rng = np.random.default_rng(4)
+    x = _data(20, 60)  # 20 images of 60 pixels: the components span 19 dimensions
+    queries = rng.normal(size=(6, 60)).astype(np.float32)  # mostly outside that span
+    state = pca.fit_pca(x, 8)
+    centred = queries - x.mean(0)
+    np.testing.assert_allclose(pca.encode(state, queries, 0, "pixels"), centred, atol=1e-5)
+    raw = cosine_similarity(centred, centred[::-1])
+    for output in ("coefficients", "pixels"):
+        ours = cosine_similarity(pca.encode(state, queries, 0, output),
+                                 pca.encode(state, queries[::-1], 0, output))
+        np.testing.assert_allclose(ours, raw, atol=1e-5)
+    v = np.asarray(state.components[:5], np.float64)
+    expected = centred - centred @ v.T @ v
+    np.testing.assert_allclose(pca.encode(state, queries, 5, "pixels"), expected, atol=1e-4)
+    one_pass = suffix_cosine(pca.suffix_descriptors(state, queries),
+                             pca.suffix_descriptors(state, queries[::-1]), (0, 5, 8))
+    for i, k in enumerate((0, 5, 8)):
+        each = cosine_similarity(pca.encode(state, queries, k, "pixels"),
+                                 pca.encode(state, queries[::-1], k, "pixels"))
+        np.testing.assert_allclose(one_pass[i], each, atol=2e-5)

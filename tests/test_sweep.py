@@ -30,7 +30,11 @@ def test_results_table_has_one_row_per_cell(small_sweep):
     assert {r.season_pair for r in rows} == PAIRS
     for r in rows:
         assert r.db_season + "-" + r.query_season == r.season_pair
-        assert r.n_train == 600 and r.n_test == 120 and r.tolerance == 2
+        # 300 places per season: 30 validate, 20 are the gap before them, 250 train
+        assert r.n_train == 500 and r.n_test == 120 and r.tolerance == 2
+        assert 0.0 <= r.val_recall_at_1 <= 1.0
+        assert r.recall_at_1_ci_low <= r.recall_at_1 <= r.recall_at_1_ci_high
+        assert r.auc_pr_ci_low <= r.auc_pr <= r.auc_pr_ci_high
         for key in ("recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_10"):
             assert 0.0 <= getattr(r, key) <= 1.0
         # Every query has a true match, so the PR curve reaches full recall at precision R@1.
@@ -42,6 +46,15 @@ def test_results_table_has_one_row_per_cell(small_sweep):
             assert r.n_iter == 2 and r.converged == 0  # 2 epochs, no early stop
         else:
             assert r.n_iter == 0 and r.converged == 1
+    # Exactly one selected row per pair x method x objective (x ds): the best on validation.
+    groups = {(r.season_pair, r.method, r.objective, r.ds) for r in rows}
+    chosen = [r for r in rows if r.selected]
+    assert len(chosen) == len(groups) and {(r.season_pair, r.method, r.objective, r.ds)
+                                           for r in chosen} == groups  # fmt: skip
+    for r in chosen:
+        rivals = [o for o in rows if (o.season_pair, o.method, o.objective, o.ds)
+                  == (r.season_pair, r.method, r.objective, r.ds)]  # fmt: skip
+        assert r.val_recall_at_1 == max(o.val_recall_at_1 for o in rivals)
     # One plain line per finished cell, whatever the terminal.
     assert proc.stdout.count("recall@1") == len(rows)
 
@@ -117,6 +130,15 @@ def test_summaries_and_figures_are_written(small_sweep):
     logdir, proc = small_sweep
     table = (logdir / "results.md").read_text()
     assert all(pair in table for pair in PAIRS)
+    sections = [line for line in table.splitlines() if line.startswith("## ")]
+    assert sections[0].startswith("## Each method at the setting chosen on the validation")
+    assert "optimistic" in sections[1]
+    headline = table.split(sections[0])[1].split(sections[1])[0]
+    labels = [line.split("|")[-2].strip() for line in headline.splitlines()
+              if line.startswith("| ") and "season_pair" not in line]  # fmt: skip
+    assert len(labels) == 3 * 9  # a selected row per pair, method and objective
+    assert labels.count("baseline") == 3
+    assert set(labels) <= {"baseline", "better", "worse", "no clear difference"}
     for name in ("pr_curves.png", "correct_matches.png"):
         image = cv2.imread(str(logdir / "figures" / name))
         assert image is not None and image.shape[0] > 100
@@ -191,11 +213,12 @@ def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path)
                    "methods=[raw]", "season_pairs=summer-fall", f"logdir={logdir}")  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     (row,) = read_results(logdir / "results.csv")
-    assert row.n_test == 120 and row.n_train == 2 * (700 - 120 - 4 * 20)
-
     # Oracle: numpy brute force over every frame of the database season.
     route = synthetic_route(700, ("summer", "fall"), 0)
     split = make_split(route.frame_ids, SplitConfig(test_sections=2, n_test=60, gap=20))
+    stretch = 700 - 120 - 4 * 20  # frames more than the gap from both test sections
+    n_val = round(0.1 * stretch)
+    assert row.n_test == 120 and row.n_train == 2 * len(split.train) == 2 * (stretch - n_val - 20)
     flat = {s: route.images[s].reshape(700, -1).astype(np.float64) for s in ("summer", "fall")}
     mean = np.concatenate([flat["summer"][split.train], flat["fall"][split.train]]).mean(0)
     db = flat["summer"] - mean

@@ -26,7 +26,7 @@ def test_image_release_folder_runs_through_the_cli(tmp_path):
     rows = read_results(tmp_path / "runs" / "results.csv")
     assert {(r.method, r.removed_pcs) for r in rows} == {("raw", 0), ("pca", 0),
                                                               ("pca", 3)}
-    assert all(r.n_train == 100 and r.n_test == 30 for r in rows)
+    assert all(r.n_train == 2 * 41 and r.n_test == 30 for r in rows)  # 50 less 5 val, gap 4
     assert all(r.recall_at_1 > 0 for r in rows)
 
 

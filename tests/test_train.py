@@ -8,12 +8,12 @@ import jax
 import numpy as np
 import pytest
 
-from tests.conftest import read_run
+from tests.conftest import read_run, tail_validation
 from vpr_jax.config import TrainConfig
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders.saved import load_encoder
-from vpr_jax.encoders.train import fit_autoencoder, make_eval_loss, split_validation
+from vpr_jax.encoders.train import fit_autoencoder, make_eval_loss
 from vpr_jax.errors import UserError
 from vpr_jax.tb import TrainingRun
 
@@ -25,7 +25,7 @@ SETTINGS = TrainConfig(epochs=3, batch_size=32, patience=10, checkpoint_every_s=
 def data():
     route = synthetic_route(120, ("summer", "fall"), 0)
     images = np.concatenate([route.images["summer"], route.images["fall"]])
-    return split_validation(images, 2, 0.1)  # 216 training images: 6 steps per epoch
+    return tail_validation(images, 2, 0.1)  # 216 training images: 6 steps per epoch
 
 
 class StopAt:
@@ -63,15 +63,6 @@ def _equal(a, b) -> bool:
 
 def _train_steps(run_dir, tag="loss/train") -> list[int]:
     return [e.step for e in read_run(run_dir).Scalars(tag)]
-
-
-def test_split_validation_holds_out_the_tail_of_each_season():
-    images = np.arange(20).reshape(20, 1, 1)
-    train, val = split_validation(images, 2, 0.2)
-    assert train.ravel().tolist() == [0, 1, 2, 3, 4, 5, 6, 7, 10, 11, 12, 13, 14, 15, 16, 17]
-    assert val.ravel().tolist() == [8, 9, 18, 19]
-    with pytest.raises(UserError, match="val_fraction"):
-        split_validation(np.zeros((4, 1, 1)), 2, 0.9)
 
 
 @pytest.mark.parametrize("spec", [SPEC, ae.CAESpec((4, 8), (3, 3), 2)])
@@ -208,7 +199,7 @@ def format1(tmp_path):
     """A copy of the format-1 checkpoints (resuming writes into them) and their data."""
     shutil.copytree(FORMAT1, tmp_path / "format1")
     rng = np.random.default_rng(0)
-    return tmp_path / "format1", split_validation(rng.random((80, 32, 64), dtype=np.float32),
+    return tmp_path / "format1", tail_validation(rng.random((80, 32, 64), dtype=np.float32),
                                                   2, 0.25)
 
 

@@ -103,6 +103,7 @@ class SplitConfig:
     gap: int = 100  # original frame indices between training and test frames
     test_sections: int = 0  # > 0: Olid-style sections (n_train and train_fraction unused)
     database: str = "test"  # test: the database is the test places; all: every frame loaded
+    val_fraction: float = 0.1  # end of the training stretch that validates (after a gap)
 
     def __post_init__(self):
         _check(self.n_train >= 1, f"split.n_train={self.n_train} must be >= 1")
@@ -111,6 +112,8 @@ class SplitConfig:
         _check(self.train_fraction is None or 0 < self.train_fraction < 1,
                f"split.train_fraction={self.train_fraction} must lie strictly between 0 and 1")
         _check(self.test_sections >= 0, f"split.test_sections={self.test_sections} must be >= 0")
+        _check(0 < self.val_fraction < 0.5,
+               f"split.val_fraction={self.val_fraction} must lie strictly between 0 and 0.5")
         _check(
             self.database in ("test", "all"),
             f"split.database={self.database} is unknown: use test or all",
@@ -119,12 +122,12 @@ class SplitConfig:
 
 @dataclass(frozen=True)
 class PCAConfig:
-    solver: str = "auto"  # auto | covariance | gram: eigh of the smaller symmetric matrix
+    solver: str = "auto"  # auto | covariance | gram | subspace (vpr_jax.encoders.pca)
     output: str = "coefficients"  # coefficients | pixels (the seed's back-projection)
 
     def __post_init__(self):
-        _check(self.solver in ("auto", "covariance", "gram"),
-               f"pca.solver={self.solver} is unknown: use auto, covariance or gram")
+        _check(self.solver in ("auto", "covariance", "gram", "subspace"),
+               f"pca.solver={self.solver} is unknown: use auto, covariance, gram or subspace")
         _check(self.output in ("coefficients", "pixels"),
                f"pca.output={self.output} is unknown: use coefficients or pixels")
 
@@ -253,7 +256,6 @@ class TrainConfig:
     batch_size: int = 64
     learning_rate: float = 1e-3
     optimizer: str = "adam"  # adam | adamw | sgd (optax)
-    val_fraction: float = 0.1  # tail of each season's training stretch held out
     patience: int = 3  # epochs without a better validation loss before stopping
     augment: bool = True  # the seed's Table 2: horizontal flip, width/height shift 0.2
     checkpoint_dir: str = "checkpoints"  # models go to <this>/<logdir name>/<pair>/<method>/
@@ -269,10 +271,6 @@ class TrainConfig:
         _check(
             self.optimizer in OPTIMIZERS,
             f"train.optimizer={self.optimizer} is unknown: use {', '.join(OPTIMIZERS)}",
-        )
-        _check(
-            0 < self.val_fraction < 1,
-            f"train.val_fraction={self.val_fraction} must lie strictly between 0 and 1",
         )
         _check(self.patience >= 1, f"train.patience={self.patience} must be >= 1")
         _check(
@@ -327,6 +325,19 @@ class PatchNormConfig:
         sizes = [s for s in range(2, h + 1) if h % s == 0 and w % s == 0]
         _check(self.size in sizes, f"patchnorm.size={self.size} does not tile the {h}x{w} "
                f"images: use one of {', '.join(map(str, sizes))}")
+
+
+@dataclass(frozen=True)
+class BootstrapConfig:
+    """95% intervals of each cell's recall@1 and AUC-PR (``vpr_jax.bootstrap``)."""
+
+    resamples: int = 1000  # block-bootstrap resamples of the queries (seeded by ``seed``)
+    block_length: int = 10  # consecutive queries per block (at least ds for sequences)
+
+    def __post_init__(self):
+        _check(self.resamples >= 10, f"bootstrap.resamples={self.resamples} must be >= 10")
+        _check(self.block_length >= 1,
+               f"bootstrap.block_length={self.block_length} must be >= 1")
 
 
 @dataclass(frozen=True)
@@ -395,6 +406,7 @@ class SweepConfig:
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     patchnorm: PatchNormConfig = field(default_factory=PatchNormConfig)
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
+    bootstrap: BootstrapConfig = field(default_factory=BootstrapConfig)
     mesh: MeshConfig = field(default_factory=MeshConfig)
     tb: TensorBoardConfig = field(default_factory=TensorBoardConfig)
 

@@ -35,7 +35,8 @@ AXIS_KEYS = {"sequence": ("enabled", "ds"), "fae": ("objective",), "cae": ("obje
 # them was computed with the value here (other new keys' defaults reproduce the old runs).
 CHANGED_DEFAULTS = {("fae", "input_centre"): 0.0, ("fae", "standardise"): False,
                     ("cae", "model"): "calc", ("cae", "space_to_depth"): 1,
-                    ("cae", "standardise"): False}
+                    ("cae", "standardise"): False,
+                    ("split", "val_fraction"): 0.0}  # no validation stretch before it
 
 
 def identity(cfg: SweepConfig | dict) -> dict:

@@ -198,7 +198,9 @@ def top_k_matches(
         raise ValueError(f"starts {starts} leave no feature of {d}")
     k = min(k, n_db)
     n_devices = sharding.mesh_size(mesh)
-    block_size = min(block_size, -(-n_db // n_devices))  # no device scores only padding
+    # No device scores only padding, but a block holds at least k rows: a small database
+    # split over many devices pads each device's block (padding scores -inf, never kept).
+    block_size = max(min(block_size, -(-n_db // n_devices)), k)
     if query_block_size is None:
         query_block_size = max(256, SCORE_BUDGET // (len(starts) * block_size))
     db_blocks = sharding.pad_rows(db_desc, n_devices * block_size).reshape(-1, block_size, d)

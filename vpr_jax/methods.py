@@ -30,7 +30,7 @@ from vpr_jax import sharding
 from vpr_jax.config import SweepConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import diff_pca, ica, lda, objectives, pca
-from vpr_jax.encoders.train import TrainingLog, fit_autoencoder, split_validation
+from vpr_jax.encoders.train import TrainingLog, fit_autoencoder
 from vpr_jax.errors import UserError
 from vpr_jax.logdir import training_identity
 from vpr_jax.matching import degenerate_rows
@@ -44,6 +44,16 @@ class PairData(NamedTuple):
     query: np.ndarray  # (n_test, 32, 64) query season, test places
     db_ids: np.ndarray  # original frame indices of the database images
     query_ids: np.ndarray
+    val: np.ndarray  # (2 * n_val, 32, 64): validation places of both seasons, database first
+    val_ids: np.ndarray  # (n_val,) their frame indices
+
+    @property
+    def val_db(self) -> np.ndarray:
+        return self.val[: len(self.val_ids)]
+
+    @property
+    def val_query(self) -> np.ndarray:
+        return self.val[len(self.val_ids) :]
 
     @property
     def name(self) -> str:
@@ -73,6 +83,8 @@ class Descriptors(NamedTuple):
     starts: tuple[int, ...]  # per count: cosine on descriptor features [start:]
     db: jax.Array  # (n_db, d)
     query: jax.Array  # (n_queries, d)
+    val_db: jax.Array  # (n_val, d): the validation places, database season
+    val_query: jax.Array  # (n_val, d): the validation places, query season
     fit_seconds: float
     encode_ms_per_image: float  # warm (compiled) encoding time
     n_iter: int = 0  # iterations of an iterative fit (0: closed form; epochs when trained)
@@ -101,12 +113,35 @@ def _timed(fn: Callable, *args):
     return out, time.perf_counter() - start
 
 
+def pca_components_needed(cfg: SweepConfig, n_samples: int, n_features: int) -> int | None:
+    """How many leading components the pair's PCA fit must hold for the methods that use it:
+    the largest removed count (pca), that plus ``ica.n_components`` (ica; None for "all",
+    which needs every component), ``lda.n_components`` (lda); at least 1, at most the rank
+    limit. From the configured counts, not the ones still to do, so a resumed sweep fits
+    the same components."""
+    limit = pca.rank_limit(n_samples, n_features)
+    counts = [k for k in cfg.removed_pcs]
+    needed = [1]
+    if "pca" in cfg.methods:
+        needed.append(max(counts))
+    if "ica" in cfg.methods:
+        if cfg.ica.n_components in (None, "all"):
+            return None
+        needed.append(max(counts) + int(cfg.ica.n_components))
+    if "lda" in cfg.methods:
+        needed.append(cfg.lda.n_components)
+    return min(max(needed), limit)
+
+
 def fit_pair_pca(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> PCAFit:
-    """The PCA fit of the pair's training images and its seconds. The methods in
-    ``USES_PCA_FIT`` start from it; the runner fits it once per pair and passes it in their
+    """The PCA fit of the pair's training images and its seconds: the leading components the
+    methods in ``USES_PCA_FIT`` need (``pca_components_needed``), by the solver
+    ``pca.solver`` names. The runner fits it once per pair and passes it in their
     context."""
-    state, seconds = _timed(lambda x: pca.fit_pca(x, solver=cfg.pca.solver, mesh=mesh),
-                            pair.train)  # fmt: skip
+    n = pca_components_needed(cfg, len(pair.train), pair.train[0].size)
+    state, seconds = _timed(
+        lambda x: pca.fit_pca(x, n, solver=cfg.pca.solver, mesh=mesh, seed=cfg.seed),
+        pair.train)  # fmt: skip
     return PCAFit(state, seconds)
 
 
@@ -116,6 +151,11 @@ def _encode(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array, flo
     db, seconds_db = _timed(encode, pair.db)
     query, seconds_q = _timed(encode, pair.query)
     return db, query, 1000 * (seconds_db + seconds_q) / (len(pair.db) + len(pair.query))
+
+
+def _encode_val(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array]:
+    both = encode(pair.val)
+    return both[: len(pair.val_ids)], both[len(pair.val_ids) :]
 
 
 def degenerate_warning(db, query) -> str | None:
@@ -145,7 +185,8 @@ def _descriptors(method: str, encode: Callable, pair: PairData, *, removed_pcs=(
     db, query, ms = _encode(encode, pair)
     found = "; ".join(w for w in (warning, degenerate_warning(db, query)) if w) or None
     return Descriptors(method, tuple(removed_pcs), tuple(starts), db, query,
-                       encode_ms_per_image=ms, basis=tuple(basis), warning=found, **fit)
+                       *_encode_val(encode, pair), encode_ms_per_image=ms, basis=tuple(basis),
+                       warning=found, **fit)
 
 
 def _images(vectors: np.ndarray, pair: PairData) -> np.ndarray:
@@ -165,10 +206,11 @@ def describe_raw(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
 
 
 def describe_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
-    """Every removed-PC count from the pair's one PCA fit.
+    """Every removed-PC count from the pair's one PCA fit: the centred image minus its
+    projection on the first k components.
 
-    The coefficients serve all counts at once (``starts=removed_pcs``), which equals zeroing
-    the first k coefficients; ``pca.output=pixels`` maps the kept ones back to pixels, one
+    ``pca.suffix_descriptors`` (coefficients and the residual) serve all counts at once
+    (``starts=removed_pcs``); ``pca.output=pixels`` encodes each count in pixel space, one
     encoding per count (the seed's form: the same similarities, slower).
     """
     state, ks = ctx.pca_fit.state, ctx.removed_pcs
@@ -180,7 +222,7 @@ def describe_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
                                removed_pcs=(k,), basis=(removed,),
                                fit_seconds=ctx.pca_fit.seconds)  # fmt: skip
     else:
-        yield _descriptors("pca", lambda x: pca.project(state, x), pair, removed_pcs=ks,
+        yield _descriptors("pca", lambda x: pca.suffix_descriptors(state, x), pair, removed_pcs=ks,
                            starts=ks, basis=basis, fit_seconds=ctx.pca_fit.seconds)
 
 
@@ -273,15 +315,14 @@ def describe_autoencoder(
     """Train (or resume, or restore) the pair's auto-encoder for each objective still to do
     (``ctx.objectives``); its code is the descriptor.
 
-    It trains on both seasons' training images minus the tail of each stretch, which is
-    the validation set for early stopping: the images themselves for ``reconstruct``, the
-    aligned places' pairs for ``cross_season`` (``vpr_jax.encoders.objectives``). Every
+    It trains on both seasons' training images and stops early on the validation places
+    (``vpr_jax.data.splits``): the images themselves for ``reconstruct``, the aligned
+    places' pairs for ``cross_season`` (``vpr_jax.encoders.objectives``). Every
     objective starts from the same initial weights. fit_seconds is the training time (of
     all sessions, when it was resumed); n_iter counts epochs; converged means early
     stopping ended training before train.epochs.
     """
     spec = autoencoder_spec(method, cfg)
-    train, val = split_validation(pair.train, 2, cfg.train.val_fraction)
     epochs = getattr(cfg, method).epochs or cfg.train.epochs  # fae.epochs / cae.epochs first
     settings = dataclasses.replace(cfg.train, epochs=epochs)
     for objective in ctx.objectives:
@@ -290,8 +331,8 @@ def describe_autoencoder(
         try:
             result = fit_autoencoder(
                 spec,
-                objectives.training_data(objective, train),
-                objectives.training_data(objective, val),
+                objectives.training_data(objective, pair.train),
+                objectives.training_data(objective, pair.val),
                 jax.random.fold_in(jax.random.key(cfg.seed), zlib.crc32(method.encode())),
                 settings,
                 checkpoint_dir=ctx.checkpoint_dir / name if ctx.checkpoint_dir else None,

@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vpr_jax.config import SWEEPS_REMOVED_PCS  # noqa: E402
-from vpr_jax.results import ResultRow, best_rows  # noqa: E402
+from vpr_jax.results import ResultRow, selected_rows  # noqa: E402
 
 
 def _variant(row: ResultRow) -> str:
@@ -34,8 +34,9 @@ def _shortest_sequences(rows: list[ResultRow]) -> list[ResultRow]:
 
 
 def pr_curves_figure(rows: list[ResultRow], load_curve: Callable[[ResultRow], tuple], path: Path):
-    """One panel per season pair, one line per method (PCA at its best removed-PC count)."""
-    best = best_rows(_shortest_sequences(rows))
+    """One panel per season pair, one line per method (PCA at its validation-selected
+    removed-PC count)."""
+    best = selected_rows(_shortest_sequences(rows))
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
@@ -53,7 +54,7 @@ def pr_curves_figure(rows: list[ResultRow], load_curve: Callable[[ResultRow], tu
 def correct_matches_figure(rows: list[ResultRow], path: Path):
     """Grouped bars: fraction of correct matches (recall@1) per pair and method (and
     objective)."""
-    best = best_rows(_shortest_sequences(rows))
+    best = selected_rows(_shortest_sequences(rows))
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
     methods = list(dict.fromkeys(_variant(r) for r in rows))
     width = 0.8 / len(methods)
@@ -74,8 +75,8 @@ def correct_matches_figure(rows: list[ResultRow], path: Path):
 
 def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
     """One panel per season pair: recall@1 against the sequence length ds, a line per method
-    (PCA and ICA at their best removed-PC count for each ds, as in results.md)."""
-    best = best_rows(rows)
+    (PCA and ICA at their validation-selected removed-PC count for each ds, as in results.md)."""
+    best = selected_rows(rows)
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
     methods = list(dict.fromkeys(_variant(r) for r in rows))
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -24,6 +25,12 @@ ResultRow = NamedTuple("ResultRow", [
     ("n_test", int),  # queries
     ("tolerance", int),
     *((name, float) for name in SCALAR_NAMES),  # the six metrics (vpr_jax.metrics)
+    ("recall_at_1_ci_low", float),  # 95% block-bootstrap interval (vpr_jax.bootstrap)
+    ("recall_at_1_ci_high", float),
+    ("auc_pr_ci_low", float),
+    ("auc_pr_ci_high", float),
+    ("val_recall_at_1", float),  # on the validation places: what chooses the setting
+    ("selected", int),  # 1: the best val_recall_at_1 of its pair x method x objective x ds
     ("fit_seconds", float),
     ("encode_ms_per_image", float),
     ("n_iter", int),  # iterations of an iterative fit (epochs for the auto-encoders)
@@ -38,6 +45,10 @@ TIMING_NAMES = ("fit_seconds", "encode_ms_per_image")
 ADDED_COLUMNS = {
     "ds": lambda row: "1",  # sequence length: 1 is single-image matching
     "objective": lambda row: "reconstruct" if row["method"] in ("fae", "cae") else "",
+    **{name: (lambda row: "nan") for name in ("recall_at_1_ci_low", "recall_at_1_ci_high",
+                                               "auc_pr_ci_low", "auc_pr_ci_high",
+                                               "val_recall_at_1")},  # fmt: skip
+    "selected": lambda row: "0",  # marked again whenever the table is written
 }
 
 
@@ -95,9 +106,36 @@ def read_results(path: Path) -> list[ResultRow]:
             raise ValueError(str(err)) from None
 
 
+GroupKey = tuple[str, str, str, int]  # (season pair, method, objective, ds)
+
+
+def group_key(row: ResultRow) -> GroupKey:
+    """The cells a setting is chosen among: one pair, method, objective and ds, whatever
+    removed-PC count."""
+    return row.season_pair, row.method, row.objective, row.ds
+
+
+def mark_selected(rows: list[ResultRow]) -> list[ResultRow]:
+    """``selected = 1`` on the row of each group (``group_key``) with the best validation
+    recall@1 (the fewest removed PCs on ties; rows without a validation score lose), 0 on
+    every other row."""
+    best: dict[GroupKey, ResultRow] = {}
+    for row in sorted(rows, key=lambda r: r.removed_pcs):
+        key, score = group_key(row), _val_score(row)
+        if key not in best or score > _val_score(best[key]):
+            best[key] = row
+    chosen = {id(r) for r in best.values()}
+    return [r._replace(selected=int(id(r) in chosen)) for r in rows]
+
+
+def _val_score(row: ResultRow) -> float:
+    return -1.0 if math.isnan(row.val_recall_at_1) else row.val_recall_at_1
+
+
 def append_results(path: Path, new_rows: list[ResultRow]) -> list[ResultRow]:
-    """Add rows to results.csv in one atomic rewrite; a crash leaves the old file whole."""
-    rows = read_results(path) + [_parse(r._asdict()) for r in new_rows]
+    """Add rows to results.csv in one atomic rewrite, each group's selected row marked
+    again (``mark_selected``); a crash leaves the old file whole."""
+    rows = mark_selected(read_results(path) + [_parse(r._asdict()) for r in new_rows])
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(COLUMNS)
@@ -117,20 +155,67 @@ def best_rows(rows: list[ResultRow], metric: str = "recall_at_1") -> list[Result
     return list(best.values())
 
 
-def markdown_table(rows: list[ResultRow]) -> str:
-    """results.md: the best removed-PC count per method (and sequence length), then every
-    cell. The ds column appears once a sweep holds sequence-matching cells."""
+def selected_rows(rows: list[ResultRow]) -> list[ResultRow]:
+    """The validation-selected row of every pair x method x objective x ds."""
+    return [r for r in mark_selected(rows) if r.selected]
+
+
+def baseline_of(row: ResultRow, selected: list[ResultRow]) -> ResultRow | None:
+    """The seed's baseline for a selected row: its pair's selected PCA row at the same ds."""
+    for other in selected:
+        if (other.season_pair, other.method, other.ds) == (row.season_pair, "pca", row.ds):
+            return other
+    return None
+
+
+def _ci(low: float, high: float) -> str:
+    return "" if math.isnan(low) else f"[{low:.3f}, {high:.3f}]"
+
+
+def markdown_table(rows: list[ResultRow], differences: dict | None = None) -> str:
+    """results.md: the validation-selected setting per method (recall@1 and AUC-PR with
+    their 95% intervals, and the paired difference to PCA that ``differences`` holds per
+    run: a ``vpr_jax.bootstrap.Difference``), then the best count chosen on the test
+    queries (optimistic), then every cell. The ds column appears once a sweep holds
+    sequence-matching cells."""
+    differences = differences or {}
     sequences = any(r.ds != 1 for r in rows)
-    cols = ("season_pair", "method", "objective", "removed_pcs", *(("ds",) if sequences else ()),
+    ds_col = ("ds",) if sequences else ()
+    cols = ("season_pair", "method", "objective", "removed_pcs", *ds_col,
             "recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_5", "recall_at_10",
             "fit_seconds", "encode_ms_per_image")
 
+    def order(rs: list[ResultRow]) -> list[ResultRow]:
+        return sorted(rs, key=lambda r: (r.season_pair, r.method, r.objective, r.removed_pcs,
+                                         r.ds))
+
     def table(rs: list[ResultRow]) -> list[str]:
         lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-        for r in sorted(rs, key=lambda r: (r.season_pair, r.method, r.objective, r.removed_pcs,
-                                           r.ds)):
+        for r in order(rs):
             values = [getattr(r, c) for c in cols]
             cells = [f"{v:.3f}" if isinstance(v, float) else str(v) for v in values]
+            lines.append("| " + " | ".join(cells) + " |")
+        return lines
+
+    def headline(rs: list[ResultRow]) -> list[str]:
+        head = ("season_pair", "method", "objective", "removed_pcs", *ds_col,
+                "val_recall_at_1", "recall_at_1", "95% CI", "auc_pr", "95% CI",
+                "recall@1 - PCA [95% CI]", "vs PCA")
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for r in order(rs):
+            diff = differences.get(r.run)
+            if r.method == "pca":
+                versus, label = "", "baseline"
+            elif diff is None:
+                versus, label = "", "n/a"
+            else:
+                versus = f"{diff.value:+.3f} [{diff.low:+.3f}, {diff.high:+.3f}]"
+                label = diff.label
+            cells = [r.season_pair, r.method, r.objective, str(r.removed_pcs),
+                     *((str(r.ds),) if sequences else ()), f"{r.val_recall_at_1:.3f}",
+                     f"{r.recall_at_1:.3f}", _ci(r.recall_at_1_ci_low, r.recall_at_1_ci_high),
+                     f"{r.auc_pr:.3f}", _ci(r.auc_pr_ci_low, r.auc_pr_ci_high), versus,
+                     label]  # fmt: skip
             lines.append("| " + " | ".join(cells) + " |")
         return lines
 
@@ -142,7 +227,17 @@ def markdown_table(rows: list[ResultRow]) -> str:
         f"frames, seed {first.get('seed', '?')}. recall_at_1 is the fraction of correct "
         "matches (= precision at 100% recall).",
         "",
-        "## Best removed-PC count per method (chosen on the test pairs: optimistic)",
+        "## Each method at the setting chosen on the validation places",
+        "",
+        "The removed-PC count with the best recall@1 on the validation places (the end of "
+        "each season's training stretch), scored on the test places. Intervals: 95%, block "
+        "bootstrap over the queries. vs PCA: a paired bootstrap of the difference to the "
+        "pair's selected PCA row on the same queries; better / worse when its interval "
+        "excludes 0.",
+        "",
+        *headline(selected_rows(rows)),
+        "",
+        "## Best removed-PC count per method, chosen on the test queries (optimistic)",
         "",
         *table(best_rows(rows)),
         "",

@@ -2,6 +2,10 @@
 
 Neighbouring frames look alike, so a test place next to a training place would leak; the gap
 is measured in original frame indices, so it means the same distance whatever the frame step.
+Each season's training stretch ends in a validation stretch (``split.val_fraction`` of it,
+after another gap): the encoders are fitted on the rest, every cell is also scored on the
+validation places, and those scores choose each method's setting (and stop the
+auto-encoders' training early), so the test places are never used to choose anything.
 """
 
 from __future__ import annotations
@@ -15,13 +19,36 @@ from vpr_jax.errors import UserError
 
 
 class Split(NamedTuple):
-    train: np.ndarray  # positions into the route's frames, ascending
+    train: np.ndarray  # positions into the route's frames, ascending: what encoders fit on
     test: np.ndarray
+    val: np.ndarray  # validation places: the end of the training stretch, after a gap
 
 
 def make_split(frame_ids: np.ndarray, cfg: SplitConfig) -> Split:
+    frame_ids = np.asarray(frame_ids)
+    stretch, test = _train_and_test(frame_ids, cfg)
+    return _hold_out_validation(frame_ids, stretch, test, cfg.val_fraction, cfg.gap)
+
+
+def _hold_out_validation(frame_ids: np.ndarray, stretch: np.ndarray, test: np.ndarray,
+                         fraction: float, gap: int) -> Split:
+    """The last ``fraction`` of the training stretch validates; the training places more
+    than ``gap`` frames before its first frame are fitted on."""
+    n_val = max(1, round(fraction * len(stretch)))
+    val = stretch[-n_val:]
+    rest = stretch[:-n_val]
+    fit = rest[frame_ids[rest] < frame_ids[val[0]] - gap]
+    if len(fit) < 2:
+        raise UserError(
+            f"the training stretch of {len(stretch)} frames leaves {len(fit)} to fit on after "
+            f"{n_val} validation frames (split.val_fraction={fraction}) and a gap of {gap}: "
+            "raise split.n_train, or lower split.val_fraction or split.gap")
+    return Split(fit, test, val)
+
+
+def _train_and_test(frame_ids: np.ndarray, cfg: SplitConfig) -> tuple[np.ndarray, np.ndarray]:
     if cfg.test_sections > 0:
-        return _sections(np.asarray(frame_ids), cfg.test_sections, cfg.n_test, cfg.gap)
+        return _sections(frame_ids, cfg.test_sections, cfg.n_test, cfg.gap)
     n = len(frame_ids)
     n_train = round(cfg.train_fraction * n) if cfg.train_fraction is not None else cfg.n_train
     if not 2 <= n_train < n:
@@ -35,10 +62,11 @@ def make_split(frame_ids: np.ndarray, cfg: SplitConfig) -> Split:
             f"the route has {n} frames but the split needs {n_train} training + a gap of "
             f"{cfg.gap} frames + {n_test} test: lower split.n_train / split.n_test / split.gap "
             "or load more frames (data.n_frames, data.frame_step)")
-    return Split(np.arange(n_train), np.arange(first_test, first_test + n_test))
+    return np.arange(n_train), np.arange(first_test, first_test + n_test)
 
 
-def _sections(frame_ids: np.ndarray, n_sections: int, length: int, gap: int) -> Split:
+def _sections(frame_ids: np.ndarray, n_sections: int, length: int, gap: int
+              ) -> tuple[np.ndarray, np.ndarray]:
     """Olid et al.'s partition: ``n_sections`` test sections of ``length`` frames centred at
     (i + 1/2) / n_sections of the route; training = every frame more than ``gap`` original
     frame indices away from every test frame."""
@@ -64,4 +92,4 @@ def _sections(frame_ids: np.ndarray, n_sections: int, length: int, gap: int) -> 
             f"{n_sections} test sections of {length} frames with {gap}-frame gaps leave "
             f"{len(train)} training frames: lower split.n_test or split.gap"
         )
-    return Split(train, test)
+    return train, test

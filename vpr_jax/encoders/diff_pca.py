@@ -22,7 +22,6 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh
@@ -72,27 +71,19 @@ def fit_diff_pca(
     return DiffPCAState(mean, moments.components, moments.explained_variance * scale)
 
 
-@jax.jit
 def encode(
     state: DiffPCAState, images: Float[Array, "n ..."], removed_pcs: int | Int[Array, ""]
 ) -> Float[Array, "n d"]:
     """Centred images minus their projection on the first ``removed_pcs`` change directions
-    (at most ``len(state.components)``; a traced count works, so ``vmap`` over counts does)."""
-    x = pca.flatten(images) - state.mean
-    kept = jnp.arange(state.components.shape[0]) < removed_pcs
-    removed = jnp.where(kept, x @ state.components.T, 0.0)
-    return x - removed @ state.components
+    (at most ``len(state.components)``; a traced count works, so ``vmap`` over counts does):
+    PCA change removal's pixel form, on these directions."""
+    return pca.encode(state, images, removed_pcs, "pixels")
 
 
-@jax.jit
 def suffix_descriptors(
     state: DiffPCAState, images: Float[Array, "n ..."]
 ) -> Float[Array, "n c_plus_d"]:
-    """``[coefficients on every component, residual after all of them]``: cosine on the
-    features ``[k:]`` equals cosine of ``encode(state, images, k)`` for every k <= c. When
-    the components span every pixel (c = d) the residual is zero and left out."""
-    x = pca.flatten(images) - state.mean
-    coefficients = x @ state.components.T
-    if state.components.shape[0] == x.shape[1]:  # a complete basis: nothing is left over
-        return coefficients
-    return jnp.concatenate([coefficients, x - coefficients @ state.components], axis=1)
+    """``[coefficients on every component, residual after all of them]``
+    (``pca.suffix_descriptors``): cosine on the features ``[k:]`` equals cosine of
+    ``encode(state, images, k)`` for every k."""
+    return pca.suffix_descriptors(state, images)

@@ -1,13 +1,25 @@
 """PCA change removal (Lowry & Milford): fit PCA on training images of both seasons, drop the
 first principal components, which carry most of the appearance change between seasons.
 
-The fit uses ``jnp.linalg.eigh`` of whichever symmetric matrix is smaller: the (D, D)
-covariance when samples outnumber pixels, else the (N, N) Gram matrix of the centred data.
+The descriptor for a removed count k is the centred image minus its projection on the first
+k components. Everything outside those k directions is kept, also what the training images
+never spanned: with fewer training images than pixels, k = 0 is exactly raw pixels.
 
-Removing the first k components can be expressed two ways and both are supported:
-- ``output="coefficients"``: the coefficients on components k, k+1, ... (what the sweep uses);
-- ``output="pixels"``: those coefficients mapped back to pixel space, as the seed did.
-Because the components are orthonormal, both give the same cosine similarities.
+Fits (``solver``) all end in ``jnp.linalg.eigh``:
+- ``covariance``: of the (D, D) covariance, summed over blocks of images: every component;
+- ``gram``: of the (N, N) Gram matrix of the centred data, for fewer images than pixels;
+- ``subspace``: only the leading ``n_components``, by a randomized range finder with a few
+  power iterations over the scatter (``X_c^T (X_c V)``, never formed) and ``eigh`` of the
+  small projected matrix (Rayleigh-Ritz; Halko, Martinsson & Tropp 2011, algorithm 4.4);
+- ``auto``: ``subspace`` when the components asked for are few (``n_components`` +
+  oversampling at most a quarter of the rank limit), else the smaller of the other two.
+
+A removed count's descriptor has two forms with the same cosine similarities:
+- ``output="coefficients"``: ``[c_1 .. c_K, r]`` with the first k coefficients zeroed, ``c``
+  the coefficients on the K fitted components and ``r`` the residual after all K (left out
+  when the components span every pixel). The features ``[k:]`` of ``suffix_descriptors``
+  are the k-removed descriptor, so one matching pass scores every k (``starts=ks``);
+- ``output="pixels"``: the descriptor in pixel space, as the seed back-projected it.
 """
 
 from __future__ import annotations
@@ -25,7 +37,8 @@ from jaxtyping import Array, Float, Int
 from vpr_jax import sharding
 from vpr_jax.sharding import AXIS
 
-Solver = Literal["auto", "covariance", "gram"]
+Solver = Literal["auto", "covariance", "gram", "subspace"]
+SOLVERS: tuple[str, ...] = ("auto", "covariance", "gram", "subspace")
 Output = Literal["coefficients", "pixels"]
 
 
@@ -44,12 +57,22 @@ def rank_limit(n_samples: int, n_features: int) -> int:
     return min(n_samples - 1, n_features)
 
 
-def choose_solver(n_samples: int, n_features: int, solver: Solver = "auto") -> str:
-    if solver == "auto":
-        return "gram" if n_samples < n_features else "covariance"
-    if solver not in ("covariance", "gram"):
-        raise ValueError(f"unknown PCA solver {solver!r}: use auto, covariance or gram")
-    return solver
+SUBSPACE_OVERSAMPLE = 10  # extra directions the range finder carries (Halko et al.'s p)
+SUBSPACE_POWER_ITERATIONS = 6  # scatter products before the Rayleigh-Ritz step
+
+
+def choose_solver(n_samples: int, n_features: int, solver: Solver = "auto",
+                  n_components: int | None = None) -> str:
+    """The solver ``auto`` stands for (see the module docstring), or ``solver`` checked."""
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown PCA solver {solver!r}: use {', '.join(SOLVERS)}")
+    if solver != "auto":
+        return solver
+    few = n_components is not None and (
+        4 * (n_components + SUBSPACE_OVERSAMPLE) <= rank_limit(n_samples, n_features))
+    if few:
+        return "subspace"
+    return "gram" if n_samples < n_features else "covariance"
 
 
 def flip_signs(components: Float[Array, "c d"]) -> Float[Array, "c d"]:
@@ -129,6 +152,29 @@ def _fit_gram(x: Float[Array, "n d"], n_components: int) -> PCAState:
     return PCAState(mean, flip_signs(components), jnp.maximum(eigvals, 0.0))
 
 
+def _scatter_times(x, mean, v):
+    """``X_c^T (X_c V)`` with ``X_c = x - mean``, without forming ``X_c``: the centring
+    is applied to the (n, l) product, so no copy of the images is made."""
+    w = x @ v - mean @ v
+    return x.T @ w - jnp.outer(mean, jnp.sum(w, axis=0))
+
+
+@functools.partial(jax.jit, static_argnames=("n_components", "n_iter", "oversample"))
+def _fit_subspace(x, key, n_components: int, n_iter: int, oversample: int) -> PCAState:
+    """The leading ``n_components`` by subspace iteration and Rayleigh-Ritz (one device)."""
+    n, d = x.shape
+    mean = jnp.mean(x, axis=0)
+    width = min(n_components + oversample, rank_limit(n, d))
+    basis, _ = jnp.linalg.qr(jax.random.normal(key, (d, width), x.dtype))
+    for _ in range(n_iter):  # a few: unrolled, each one scatter product and a QR
+        basis, _ = jnp.linalg.qr(_scatter_times(x, mean, basis))
+    small = basis.T @ _scatter_times(x, mean, basis)  # (l, l): the scatter on the subspace
+    eigvals, eigvecs = jnp.linalg.eigh((small + small.T) / 2)
+    eigvals = eigvals[::-1][:n_components] / (n - 1)
+    components = (basis @ eigvecs[:, ::-1][:, :n_components]).T
+    return PCAState(mean, flip_signs(components), jnp.maximum(eigvals, 0.0))
+
+
 def fit_pca(
     train: Float[Array, "n ..."],
     n_components: int | None = None,
@@ -136,13 +182,15 @@ def fit_pca(
     *,
     mesh: Mesh | None = None,
     block_rows: int = COVARIANCE_BLOCK_ROWS,
+    seed: int = 0,
 ) -> PCAState:
     """Fit PCA on training images (any trailing shape; flattened to D pixels).
 
     ``n_components`` defaults to the rank limit min(N - 1, D). The covariance solver sums
     the centred scatter over blocks of ``block_rows`` images, and with a ``mesh`` splits
-    the images across its devices (``vpr_jax.sharding``); the Gram solver, for fewer
-    images than pixels, runs on one device.
+    the images across its devices (``vpr_jax.sharding``); the Gram and subspace solvers
+    run on one device (the subspace solver's products are a few passes over the images). ``seed`` draws the
+    subspace solver's starting directions.
     """
     xp = np if mesh is not None else jnp  # host rows for a mesh, else wherever they are
     x = xp.reshape(xp.asarray(train, np.float32), (len(train), -1))
@@ -153,8 +201,12 @@ def fit_pca(
     n_components = limit if n_components is None else n_components
     if not 1 <= n_components <= limit:
         raise ValueError(f"n_components={n_components} outside 1..{limit} for {n} x {d} data")
-    if choose_solver(n, d, solver) == "gram":
+    chosen = choose_solver(n, d, solver, n_components)
+    if chosen == "gram":
         return _fit_gram(x, n_components)
+    if chosen == "subspace":
+        return _fit_subspace(jnp.asarray(x), jax.random.key(seed), n_components,
+                             SUBSPACE_POWER_ITERATIONS, SUBSPACE_OVERSAMPLE)  # fmt: skip
     if mesh is None:
         mean, scatter = _moments(x, block_rows)
     else:
@@ -169,6 +221,21 @@ def project(state: PCAState, images: Float[Array, "n ..."]) -> Float[Array, "n c
     return (flatten(images) - state.mean) @ state.components.T
 
 
+@jax.jit
+def suffix_descriptors(state, images: Float[Array, "n ..."]) -> Float[Array, "n e"]:
+    """``[c_1 .. c_K, r]``: coefficients on the K components of ``state`` (anything with
+    orthonormal ``components`` rows and a ``mean``) and the residual after all K; left out
+    when the components span every pixel. Cosine on the features ``[k:]`` equals cosine of
+    ``encode(state, images, k)`` for every k <= K: the coefficients lie on orthonormal
+    directions and the residual is orthogonal to them, so dot products and norms of the
+    suffix are those of the k-removed descriptors."""
+    x = flatten(images) - state.mean
+    coefficients = x @ state.components.T
+    if state.components.shape[0] == x.shape[1]:  # a complete basis: nothing is left over
+        return coefficients
+    return jnp.concatenate([coefficients, x - coefficients @ state.components], axis=1)
+
+
 @functools.partial(jax.jit, static_argnames=("output",))
 def encode(
     state: PCAState,
@@ -176,17 +243,21 @@ def encode(
     removed_pcs: int | Int[Array, ""],
     output: Output = "coefficients",
 ) -> Float[Array, "n e"]:
-    """Change-removed descriptors: the first ``removed_pcs`` components are zeroed.
+    """Change-removed descriptors: the centred images minus their projection on the first
+    ``removed_pcs`` components (at most K = ``len(state.components)``).
 
-    Zeroing instead of slicing keeps the shape fixed, so one compiled function serves every
-    removed-PC count and ``jax.vmap`` over a vector of counts works. ``output="pixels"`` maps
-    the kept coefficients back to pixel space, shape (n, D).
+    ``output="coefficients"``: ``suffix_descriptors`` with the first ``removed_pcs``
+    features zeroed, shape (n, K + D), or (n, K) for a complete basis; ``"pixels"``: the
+    same descriptor in pixel space, (n, D). Both give the same cosine similarities. Zeroing
+    instead of slicing keeps the shape fixed, so one compiled function serves every count
+    and ``jax.vmap`` over a vector of counts works (``state`` may be any fit with a
+    ``mean`` and orthonormal ``components``, e.g. ``diff_pca``'s).
     """
-    coeffs = project(state, images)
-    kept = jnp.arange(coeffs.shape[1]) >= removed_pcs
-    coeffs = jnp.where(kept, coeffs, 0.0)
     if output == "pixels":
-        return coeffs @ state.components
+        x = flatten(images) - state.mean
+        first = jnp.arange(state.components.shape[0]) < removed_pcs
+        return x - jnp.where(first, x @ state.components.T, 0.0) @ state.components
     if output != "coefficients":
         raise ValueError(f"unknown output {output!r}: use coefficients or pixels")
-    return coeffs
+    described = suffix_descriptors(state, images)
+    return jnp.where(jnp.arange(described.shape[1]) >= removed_pcs, described, 0.0)

@@ -164,23 +164,6 @@ def check_batch_splits(batch_size: int, mesh: Mesh | None, images_per_example: i
                         "set mesh.devices")
 
 
-def split_validation(
-    images: np.ndarray, n_groups: int, fraction: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Hold out the last ``fraction`` of each of ``n_groups`` equal consecutive groups.
-
-    The sweep's training images are two seasons' training stretches back to back; the tail of
-    each stretch is validation, so no validation place sits between training places.
-    """
-    groups = np.split(np.asarray(images), n_groups)
-    n_val = max(1, int(round(len(groups[0]) * fraction)))
-    if len(groups[0]) - n_val < 1:
-        raise UserError(f"train.val_fraction={fraction} leaves no training image: lower it")
-    train = np.concatenate([g[:-n_val] for g in groups])
-    val = np.concatenate([g[-n_val:] for g in groups])
-    return train, val
-
-
 
 
 def _examples(images: np.ndarray, n: int) -> np.ndarray:
