@@ -152,7 +152,7 @@ def save_cell(logdir: Path, cfg: SweepConfig, pair: PairData, desc: Descriptors,
         n_test=len(pair.query), tolerance=cfg.tolerance, **ev.scalars(),
         recall_at_1_ci_low=ci.recall_at_1.low, recall_at_1_ci_high=ci.recall_at_1.high,
         auc_pr_ci_low=ci.auc_pr.low, auc_pr_ci_high=ci.auc_pr.high,
-        val_recall_at_1=val.recall_at_1, selected=0,
+        val_recall_at_1=val.recall_at_1, val_auc_pr=val.auc_pr, selected=0,
         fit_seconds=desc.fit_seconds, encode_ms_per_image=desc.encode_ms_per_image,
         n_iter=desc.n_iter, converged=int(desc.converged), seed=cfg.seed, run=name,
     )  # fmt: skip

@@ -195,8 +195,9 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
     atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(to_dict(cfg)))
     log.open(out / "sweep.log")
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
-    log(f"sweep: {len(plan.route)} frames per season, {len(plan.split.train)} training and "
-        f"{len(plan.split.test)} test places per season, pairs "
+    log(f"sweep: {len(plan.route)} frames per season, {len(plan.split.train)} training, "
+        f"{len(plan.split.val)} validation and {len(plan.split.test)} test places per "
+        f"season, pairs "
         f"{[f'{a}-{b}' for a, b in plan.pairs]}, methods {list(cfg.methods)}, logdir {logdir}")
     cells, todo = _cells_to_do(plan, log)
     write_experiment_config(

@@ -30,7 +30,8 @@ ResultRow = NamedTuple("ResultRow", [
     ("auc_pr_ci_low", float),
     ("auc_pr_ci_high", float),
     ("val_recall_at_1", float),  # on the validation places: what chooses the setting
-    ("selected", int),  # 1: the best val_recall_at_1 of its pair x method x objective x ds
+    ("val_auc_pr", float),  # breaks ties of val_recall_at_1 (it saturates on easy routes)
+    ("selected", int),  # 1: the best on validation of its pair x method x objective x ds
     ("fit_seconds", float),
     ("encode_ms_per_image", float),
     ("n_iter", int),  # iterations of an iterative fit (epochs for the auto-encoders)
@@ -47,7 +48,7 @@ ADDED_COLUMNS = {
     "objective": lambda row: "reconstruct" if row["method"] in ("fae", "cae") else "",
     **{name: (lambda row: "nan") for name in ("recall_at_1_ci_low", "recall_at_1_ci_high",
                                                "auc_pr_ci_low", "auc_pr_ci_high",
-                                               "val_recall_at_1")},  # fmt: skip
+                                               "val_recall_at_1", "val_auc_pr")},  # fmt: skip
     "selected": lambda row: "0",  # marked again whenever the table is written
 }
 
@@ -117,8 +118,8 @@ def group_key(row: ResultRow) -> GroupKey:
 
 def mark_selected(rows: list[ResultRow]) -> list[ResultRow]:
     """``selected = 1`` on the row of each group (``group_key``) with the best validation
-    recall@1 (the fewest removed PCs on ties; rows without a validation score lose), 0 on
-    every other row."""
+    recall@1, ties broken by validation AUC-PR, then by the fewest removed PCs (rows without
+    a validation score lose); 0 on every other row."""
     best: dict[GroupKey, ResultRow] = {}
     for row in sorted(rows, key=lambda r: r.removed_pcs):
         key, score = group_key(row), _val_score(row)
@@ -128,8 +129,8 @@ def mark_selected(rows: list[ResultRow]) -> list[ResultRow]:
     return [r._replace(selected=int(id(r) in chosen)) for r in rows]
 
 
-def _val_score(row: ResultRow) -> float:
-    return -1.0 if math.isnan(row.val_recall_at_1) else row.val_recall_at_1
+def _val_score(row: ResultRow) -> tuple[float, float]:
+    return tuple(-1.0 if math.isnan(v) else v for v in (row.val_recall_at_1, row.val_auc_pr))
 
 
 def append_results(path: Path, new_rows: list[ResultRow]) -> list[ResultRow]:
