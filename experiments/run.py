@@ -32,7 +32,7 @@ from vpr_jax.config import SWEEPS_REMOVED_PCS, MeshConfig, SweepConfig, to_dict
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import check_batch_splits
 from vpr_jax.errors import UserError
-from vpr_jax.logdir import identity
+from vpr_jax.logdir import identity, lock_logdir
 from vpr_jax.methods import (
     AUTOENCODERS,
     METHODS,
@@ -162,6 +162,8 @@ def run_cells(plan: Plan, log: RunLog) -> Path:
     # With several processes all compute, process 0 writes the logdir; the others read it
     # (shared file system) to agree on what is left, and write to a folder they delete.
     primary = jax.process_index() == 0
+    if primary:  # every check passed: from here on this process is the logdir's writer
+        lock_logdir(plan.logdir)
     out = plan.logdir if primary else Path(tempfile.mkdtemp(prefix="vpr_jax-replica-"))
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -232,6 +234,7 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                         bar.advance()
                         log_cell(log, f"[{finished}/{len(cells)}]", row, warning)
     write_summaries(out, cfg)
+    shutil.rmtree(out / INCOMPLETE, ignore_errors=True)  # empty once every cell moved out
     log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
         f"view with: tensorboard --logdir {logdir}")
     return logdir

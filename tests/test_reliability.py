@@ -140,3 +140,60 @@ def test_another_seed_gives_another_route_and_other_initial_weights(small_sweep,
     _, seed_0 = load_encoder(first.parent / "checkpoints" / "runs" / "summer-fall" / "fae")
     _, seed_1 = load_encoder(tmp_path / "checkpoints" / "runs" / "summer-fall" / "fae")
     assert not np.allclose(seed_0["encoder"]["kernel"], seed_1["encoder"]["kernel"])
+
+
+HOLD_LOCK = ("import sys, time; from vpr_jax.logdir import lock_logdir; "
+             "lock_logdir(__import__('pathlib').Path(sys.argv[1])); print('held', flush=True); "
+             "time.sleep(600)")
+
+
+def test_one_sweep_per_logdir_and_the_lock_dies_with_its_holder(tmp_path):
+    logdir = tmp_path / "runs"
+    args = [*SMALL, "methods=[raw]", "season_pairs=summer-fall", f"logdir={logdir}"]
+    assert run_cli(*args).returncode == 0
+    assert not (logdir / ".incomplete").exists()  # a finished sweep leaves nothing behind
+    before = (logdir / "results.csv").read_bytes()
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_LOCK, str(logdir)], cwd=REPO,
+                              env={**os.environ, "PYTHONPATH": str(REPO)},
+                              stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        second = run_cli(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
+        lines = second.stderr.strip().splitlines()
+        assert second.returncode == 2 and len(lines) == 1, second.stderr
+        assert "in use by another sweep" in lines[0] and f"pid {holder.pid}" in lines[0]
+        assert "another logdir=PATH" in lines[0] and "Traceback" not in second.stderr
+        assert (logdir / "results.csv").read_bytes() == before  # nothing touched
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    # SIGKILL leaves no stale lock: the same command now runs and adds its cells once.
+    third = run_cli(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
+    assert third.returncode == 0, third.stderr
+    rows = read_results(logdir / "results.csv")
+    assert sorted((r.method, r.removed_pcs) for r in rows) == [("pca", 0), ("pca", 5),
+                                                                ("raw", 0)]
+    assert not (logdir / ".incomplete").exists()
+
+
+def test_logdirs_of_one_name_cannot_train_into_the_same_checkpoint_folder(tmp_path):
+    """runs/a/quick and runs/b/quick both map to checkpoints/quick/...: while one trains a
+    model the other stops with one line instead of writing the same checkpoints."""
+    checkpoints = tmp_path / "checkpoints"
+    args = [*SMALL, "methods=[fae]", "fae.objective=reconstruct", "season_pairs=summer-fall",
+            "fae.epochs=1", f"train.checkpoint_dir={checkpoints}"]
+    model = checkpoints / "quick" / "summer-fall" / "fae"
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_LOCK, str(model)], cwd=REPO,
+                              env={**os.environ, "PYTHONPATH": str(REPO)},
+                              stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        proc = run_cli(*args, f"logdir={tmp_path / 'b' / 'quick'}")
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1, proc.stderr
+        assert f"checkpoint folder {model} is in use by another sweep" in lines[0]
+        assert f"pid {holder.pid}" in lines[0]
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    assert run_cli(*args, f"logdir={tmp_path / 'b' / 'quick'}").returncode == 0

@@ -17,7 +17,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from vpr_jax.errors import UserError
 from vpr_jax.metrics import PR_CONVENTIONS
-from vpr_jax.shapes import IMAGE_SHAPE
+from vpr_jax.shapes import IMAGE_SHAPE, MAX_PIXELS
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
 SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")
@@ -66,6 +66,7 @@ class DataConfig:
     # counted in the run log; true drops them from every season before the split.
     drop_constant_frames: bool = False
     constant_std: float = 0.01  # a frame whose pixel std (grey in [0, 1]) is <= this is constant
+    max_pixels: int = MAX_PIXELS  # larger images (read from their headers) are refused
 
     def __post_init__(self):
         _as_tuple(self, "seasons")
@@ -77,6 +78,7 @@ class DataConfig:
                f"data.seasons={list(self.seasons)} repeats a season: name each once")
         _check(self.n_frames >= 2, f"data.n_frames={self.n_frames} is too small: use >= 2")
         _check(self.frame_step >= 1, f"data.frame_step={self.frame_step} must be >= 1")
+        _check(self.max_pixels >= 1, f"data.max_pixels={self.max_pixels} must be >= 1")
         _check(0 <= self.constant_std < 0.5, f"data.constant_std={self.constant_std} is not "
                "a pixel standard deviation in [0, 0.5): use e.g. 0.01")
         _check(self.source == "synthetic" or self.root is not None,

@@ -10,7 +10,11 @@ configurations. No JAX here: these checks run before it loads.
 from __future__ import annotations
 
 import dataclasses
+import fcntl
+import os
+import socket
 import tempfile
+import time
 from pathlib import Path
 
 import yaml
@@ -118,3 +122,40 @@ def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
     except (OSError, ValueError) as err:
         raise UserError(f"{results} is not a results table this sweep can resume ({err}): "
                         "move it away or use a new logdir=PATH") from None
+
+
+LOCK_NAME = ".lock"
+_held: dict[Path, int] = {}  # logdir -> the open lock file: held until the process ends
+
+
+def lock_logdir(logdir: Path) -> None:
+    """Make this process the logdir's only writer: an exclusive ``flock`` on
+    ``logdir/.lock``, kept until the process exits (the kernel drops it then, also on
+    SIGKILL, so no stale lock is left). The file says who holds it (pid, host, start time).
+    Raises UserError naming the holder when another sweep has it; nothing is changed then.
+    """
+    lock_folder(logdir, "logdir", "wait for it to finish, or use another logdir=PATH")
+
+
+def lock_folder(folder: Path, what: str, fix: str) -> None:
+    """``lock_logdir`` for any folder only one process may write (e.g. a model's checkpoint
+    folder while it trains: two logdirs of one name under different parents share it)."""
+    folder = Path(folder)
+    if folder in _held:
+        return
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as err:
+        raise UserError(f"{what} {folder} cannot be locked ({err.strerror}): set it to a "
+                        "folder you can write") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        holder = os.pread(fd, 4096, 0).decode(errors="replace").strip() or "another process"
+        os.close(fd)
+        raise UserError(f"{what} {folder} is in use by another sweep ({holder}): {fix}") from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, (f"pid {os.getpid()} on {socket.gethostname()} since "
+                   f"{time.strftime('%Y-%m-%d %H:%M:%S')}\n").encode(), 0)  # fmt: skip
+    _held[folder] = fd

@@ -32,7 +32,7 @@ from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import diff_pca, ica, lda, objectives, pca
 from vpr_jax.encoders.train import TrainingLog, fit_autoencoder
 from vpr_jax.errors import UserError
-from vpr_jax.logdir import training_identity
+from vpr_jax.logdir import lock_folder, training_identity
 from vpr_jax.matching import degenerate_rows
 
 
@@ -327,6 +327,11 @@ def describe_autoencoder(
     settings = dataclasses.replace(cfg.train, epochs=epochs)
     for objective in ctx.objectives:
         name = model_name(method, objective)
+        if ctx.checkpoint_dir is not None and jax.process_index() == 0:
+            # Logdirs of one name under different parents share this folder: one writer.
+            lock_folder(ctx.checkpoint_dir / name, "checkpoint folder",
+                        "wait for it to finish, or give this logdir another name (or set "
+                        "train.checkpoint_dir)")  # fmt: skip
         log = ctx.training_log(name) if ctx.training_log else None
         try:
             result = fit_autoencoder(

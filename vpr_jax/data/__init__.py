@@ -21,5 +21,6 @@ def load_route(cfg: DataConfig, seed: int, log: Log = print) -> Route:
         from vpr_jax.data.nordland import load_nordland
 
         route = load_nordland(cfg.source, cfg.root, cfg.seasons, cache_dir=cfg.cache_dir,
-                              frame_list=cfg.frame_list, frame_step=cfg.frame_step, log=log)
+                              frame_list=cfg.frame_list, frame_step=cfg.frame_step,
+                              max_pixels=cfg.max_pixels, log=log)
     return screen_route(route, max_std=cfg.constant_std, drop=cfg.drop_constant_frames, log=log)

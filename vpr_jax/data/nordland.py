@@ -13,9 +13,10 @@ Sources (``load_nordland(source, ...)``):
   converted to grayscale and resized with area interpolation.
 
 Every reader takes the keywords ``frame_list`` (a file of frame names or ranges to keep),
-``frame_step`` (keep every step-th frame after that) and ``log`` (where notes go). Mistakes a
-user can fix raise :class:`~vpr_jax.errors.UserError` with one line naming the problem and
-the fix.
+``frame_step`` (keep every step-th frame after that), ``max_pixels`` (images or video frames
+larger than this are refused, from their headers, before decoding) and ``log`` (where notes
+go). Mistakes a user can fix raise :class:`~vpr_jax.errors.UserError` with one line naming
+the problem and the fix.
 """
 
 from __future__ import annotations
@@ -36,9 +37,11 @@ import cv2
 import numpy as np
 
 from vpr_jax.data.frames import frame_id_from_name, parse_frame_list
+from vpr_jax.data.image_header import image_size
 from vpr_jax.data.route import IMAGE_SHAPE, Route
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Log, interactive, track
+from vpr_jax.shapes import MAX_PIXELS
 
 PathLike = str | os.PathLike
 
@@ -105,7 +108,7 @@ def read_folders(root: PathLike, seasons: Sequence[str], **options) -> Route:
 def _read_image_folders(source: str, root: PathLike, seasons: Sequence[str], *,
                         match: Callable[[Path, str], int | None], empty_hint: str, resize: bool,
                         frame_list: PathLike | None = None, frame_step: int = 1,
-                        log: Log = print) -> Route:
+                        max_pixels: int = MAX_PIXELS, log: Log = print) -> Route:
     """Index every season folder ({frame id: path}, names ``match`` maps to ids), align the
     seasons, then read only the frames kept."""
     seasons = _check_seasons(seasons)
@@ -122,7 +125,8 @@ def _read_image_folders(source: str, root: PathLike, seasons: Sequence[str], *,
     images, colour = {}, {}
     for season, by_id in files.items():
         paths = [by_id[int(i)] for i in ids]
-        images[season], colour[season] = _read_images(paths, season, resize=resize)
+        images[season], colour[season] = _read_images(paths, season, resize=resize,
+                                                      max_pixels=max_pixels)
     _note_colour(colour, log)
     log(_summary(source, ids, seasons, root))
     return Route(ids, images)
@@ -135,6 +139,7 @@ def read_videos(
     cache_dir: PathLike | None,
     frame_list: PathLike | None = None,
     frame_step: int = 1,
+    max_pixels: int = MAX_PIXELS,
     log: Log = print,
 ) -> Route:
     """Season videos in ``root``: the one file whose name contains the season (any case).
@@ -159,7 +164,8 @@ def read_videos(
                 f"cannot create the video cache folder {cache} ({err.strerror}): "
                 f"set data.cache_dir=PATH to a writable folder"
             ) from None
-    raw = {season: _video_frames(videos[season], season, cache, log) for season in seasons}
+    raw = {season: _video_frames(videos[season], season, cache, log, max_pixels)
+           for season in seasons}  # fmt: skip
     ids = _align({s: r[1] for s, r in raw.items()}, frame_list, frame_step, log)
     images = {}
     for season in seasons:
@@ -319,11 +325,28 @@ def _summary(source: str, ids: np.ndarray, seasons: Sequence[str], root: Path) -
 # images
 
 
-def _read_images(paths: list[Path], season: str, *, resize: bool) -> tuple[np.ndarray, int]:
-    """(N, 32, 64) float32 in [0, 1] and how many of the files were colour."""
+def _check_pixels(what: str, width: int, height: int, max_pixels: int) -> None:
+    if width * height > max_pixels:
+        raise UserError(f"{what} is {width:,} x {height:,} pixels, over data.max_pixels="
+                        f"{max_pixels:,}: shrink it (the suite reads every frame as 64x32) or "
+                        "raise data.max_pixels if this is meant")  # fmt: skip
+
+
+def _read_images(paths: list[Path], season: str, *, resize: bool,
+                 max_pixels: int = MAX_PIXELS) -> tuple[np.ndarray, int]:
+    """(N, 32, 64) float32 in [0, 1] and how many of the files were colour. Each file's
+    size is read from its header first (``image_header``): an image over ``max_pixels``
+    is refused before it is decoded."""
     out = np.empty((len(paths), _H, _W), dtype=np.float32)
     colour = 0
     for i, path in enumerate(track(paths, f"reading {season}", total=len(paths))):
+        try:
+            size = image_size(path)
+        except OSError as err:
+            raise UserError(f"image {path} cannot be read ({err.strerror}): check that it "
+                            "exists and that you may read it") from None  # fmt: skip
+        if size is not None:
+            _check_pixels(f"image {path}", *size, max_pixels)
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise UserError(_unreadable(path))
@@ -409,14 +432,14 @@ def _find_video(root: Path, season: str) -> Path:
 
 
 def _video_frames(
-    video: Path, season: str, cache_dir: Path | None, log: Log
+    video: Path, season: str, cache_dir: Path | None, log: Log, max_pixels: int = MAX_PIXELS
 ) -> tuple[np.ndarray, np.ndarray]:
     """(frames (N, 32, 64) uint8 or float, frame ids (N,) int64) from the cache or the video."""
     cache = _cache_path(video, cache_dir) if cache_dir is not None else None
     if cache is not None and cache.exists():
         return _load_cache(cache)
     start = time.perf_counter()
-    frames, ids = _decode_video(video, season, log)
+    frames, ids = _decode_video(video, season, log, max_pixels)
     took = time.perf_counter() - start
     note = ""
     if cache is not None:
@@ -498,7 +521,8 @@ def _grabbed(cap: cv2.VideoCapture) -> Iterator[int]:
         k += 1
 
 
-def _decode_video(video: Path, season: str, log: Log) -> tuple[np.ndarray, np.ndarray]:
+def _decode_video(video: Path, season: str, log: Log, max_pixels: int = MAX_PIXELS
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Sample one frame per second of video time: (frames (N, 32, 64) uint8, ids 0..N-1)."""
     cap = cv2.VideoCapture(str(video))
     try:
@@ -507,6 +531,9 @@ def _decode_video(video: Path, season: str, log: Log) -> tuple[np.ndarray, np.nd
                 f"video {video} cannot be opened by OpenCV (corrupt, truncated or an unknown "
                 f"codec): re-download it or re-encode it, e.g. ffmpeg -i IN -c:v libx264 OUT.mp4"
             )
+        width, height = cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)
+        if math.isfinite(width) and math.isfinite(height):
+            _check_pixels(f"a frame of video {video}", int(width), int(height), max_pixels)
         fps = cap.get(cv2.CAP_PROP_FPS)
         fps = fps if math.isfinite(fps) and fps > 0 else 0.0
         count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
