@@ -12,6 +12,7 @@ exit code 2, nothing in the logdir touched.
 
 from __future__ import annotations
 
+import errno
 import os
 import shlex
 import signal
@@ -49,13 +50,38 @@ def interrupted_line(argv: list[str], cfg: SweepConfig | None) -> str:
     command = shlex.join(["python", "-m", "experiments.sweep", *argv])
     if cfg is None:
         return f"interrupted before anything was written; run again with: {command}"
-    results = Path(cfg.logdir).expanduser().resolve() / "results.csv"
-    try:
-        n = len(read_results(results))
-    except (OSError, ValueError):  # not ours: prepare_logdir refused it, nothing was written
-        n = 0
+    n, results = _saved_cells(cfg)
     saved = f"{n} finished cell(s) are saved in {results}" if n else "no cell had finished"
     return f"interrupted: {saved}; resume with: {command}"
+
+
+# Faults of the disk, not of the input: the run stops, everything finished stays saved.
+WRITE_FAULTS = {errno.ENOSPC: "free space", errno.EDQUOT: "free space within your quota",
+                errno.EFBIG: "free space or raise the file-size limit (ulimit -f)",
+                errno.EROFS: "make the logdir writable or set logdir=PATH",
+                errno.EIO: "check the disk"}  # fmt: skip
+
+
+def _saved_cells(cfg: SweepConfig | None) -> tuple[int, Path | None]:
+    """How many finished cells results.csv holds (0 when it is missing or not ours)."""
+    if cfg is None:
+        return 0, None
+    results = Path(cfg.logdir).expanduser().resolve() / "results.csv"
+    try:
+        return len(read_results(results)), results
+    except (OSError, ValueError):  # not ours: prepare_logdir refused it, nothing was written
+        return 0, results
+
+
+def write_fault_line(err: OSError, argv: list[str], cfg: SweepConfig | None) -> str:
+    """One line for a disk fault while writing: the path, the cause, the fix, what is
+    saved and the command that resumes."""
+    where = err.filename or (Path(cfg.logdir).expanduser().resolve() if cfg else "the logdir")
+    n, results = _saved_cells(cfg)
+    saved = f"{n} finished cell(s) are saved in {results}" if n else "no cell had finished"
+    command = shlex.join(["python", "-m", "experiments.sweep", *argv])
+    return (f"cannot write {where}: {err.strerror} ({errno.errorcode[err.errno]}): "
+            f"{WRITE_FAULTS[err.errno]}, then rerun the same command: {saved}; {command}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -74,6 +100,15 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:
+        if err.errno not in WRITE_FAULTS:
+            raise
+        print(f"error: {write_fault_line(err, argv, cfg)}", file=sys.stderr)
+        # Exit now: at exit tensorboardX would retry its failed writes and print their
+        # tracebacks; everything finished is already on disk.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(1)
     except KeyboardInterrupt as stop:
         print(interrupted_line(argv, cfg), file=sys.stderr)
         return 128 + (signal.SIGTERM if isinstance(stop, Terminated) else signal.SIGINT)

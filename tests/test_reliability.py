@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from tests.conftest import REPO, SMALL, read_run, run_cli
 from vpr_jax import load_encoder
@@ -197,3 +198,59 @@ def test_logdirs_of_one_name_cannot_train_into_the_same_checkpoint_folder(tmp_pa
         holder.send_signal(signal.SIGKILL)
         holder.wait()
     assert run_cli(*args, f"logdir={tmp_path / 'b' / 'quick'}").returncode == 0
+
+
+def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
+    logdir = tmp_path / "runs"
+    args = [*SMALL, "methods=[raw,pca]", "removed_pcs=[0,5,20]", f"logdir={logdir}"]
+    # A cell's TensorBoard run without basis images is ~42 KB, with them ~54 KB: the first
+    # PCA cell that shows removed components cannot be written.
+    # Files may grow to 48 KiB (ulimit -f counts KiB); past it writes fail with EFBIG, as on
+    # a full disk, since the shell ignores SIGXFSZ for the sweep it starts. A shell, not
+    # preexec_fn: forking this JAX process could deadlock.
+    sweep = shlex.join([sys.executable, "-m", "experiments.sweep", *args])
+    proc = subprocess.run(["bash", "-c", f"ulimit -f 48; trap '' XFSZ; exec {sweep}"], cwd=REPO,
+                          env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True,
+                          text=True)  # fmt: skip
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr and "File too large" in lines[0]
+    assert str(logdir) in lines[0] and "rerun the same command" in lines[0]
+    saved = read_results(logdir / "results.csv")
+    assert 1 <= len(saved) < 3 * 4 and f"{len(saved)} finished cell(s) are saved" in lines[0]
+    again = run_cli(*args)
+    assert again.returncode == 0, again.stderr
+    rows = read_results(logdir / "results.csv")
+    assert len(rows) == 3 * 4 and len({(r.season_pair, r.method, r.removed_pcs)
+                                       for r in rows}) == 12  # fmt: skip
+    kept = {r.run: r for r in rows}
+    for row in saved:  # the cells saved before the fault were not redone (only which row
+        assert kept[row.run]._replace(selected=0) == row._replace(selected=0)  # is selected)
+    assert not (logdir / ".incomplete").exists()
+    for row in rows:  # every cell's run is whole: TensorBoard reads its metrics back
+        assert read_run(logdir / row.run).Scalars("metrics/recall_at_1")
+
+
+def test_a_full_disk_is_one_line_and_the_same_command_completes_once_space_is_freed(tmp_path):
+    """A real full file system: a 400 KB tmpfs (root only), grown to 20 MB afterwards."""
+    mount = tmp_path / "small_disk"
+    mount.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs",
+                                            str(mount)], capture_output=True).returncode:
+        pytest.skip("mounting a tmpfs needs root")
+    try:
+        args = [*SMALL, "methods=[raw,pca]", "removed_pcs=[0,5,20]", f"logdir={mount / 'runs'}"]
+        proc = run_cli(*args)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+        assert "No space left on device (ENOSPC)" in lines[0] and "Traceback" not in proc.stderr
+        saved = read_results(mount / "runs" / "results.csv")
+        assert f"{len(saved)} finished cell(s) are saved" in lines[0]
+        subprocess.run(["mount", "-o", "remount,size=20m", str(mount)], check=True)
+        again = run_cli(*args)
+        assert again.returncode == 0, again.stderr
+        rows = read_results(mount / "runs" / "results.csv")
+        assert len(rows) == len({r.run for r in rows}) == 12
+        assert not (mount / "runs" / ".incomplete").exists()
+    finally:
+        subprocess.run(["umount", str(mount)], capture_output=True)

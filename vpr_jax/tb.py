@@ -7,7 +7,9 @@ written once at the root, and each run's hparams go into that run's own writer, 
 
 from __future__ import annotations
 
+import threading
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +18,31 @@ from tensorboardX import SummaryWriter
 from tensorboardX.proto.summary_pb2 import Summary
 
 from vpr_jax.metrics import Evaluation, pr_counts
+
+# tensorboardX writes event files from a thread of its own: an OSError there (a full disk)
+# would only print that thread's traceback, and the run would look written. The hook keeps
+# such errors; every writer's close() raises the first one in the thread that saves results.
+_writer_faults: list[OSError] = []
+_default_hook = threading.excepthook
+
+
+def _keep_writer_faults(args) -> None:
+    frames = traceback.extract_tb(args.exc_traceback)
+    if isinstance(args.exc_value, OSError) and any("tensorboardX" in f.filename for f in frames):
+        _writer_faults.append(args.exc_value)
+        return
+    _default_hook(args)
+
+
+threading.excepthook = _keep_writer_faults
+
+
+def _closed(writer: SummaryWriter) -> None:
+    """Close ``writer`` (its thread flushes and ends) and raise what its thread could not
+    write, if anything."""
+    writer.close()
+    if _writer_faults:
+        raise _writer_faults.pop(0)
 
 
 def _to_tbx(summary_pb) -> Summary:
@@ -30,8 +57,9 @@ def write_experiment_config(logdir: Path, domains: dict[str, list], metric_tags:
     # A resumed or extended sweep replaces the experiment instead of adding a second one.
     for old in Path(logdir).glob("events.out.tfevents.*.hparams"):
         old.unlink()
-    with SummaryWriter(str(logdir), filename_suffix=".hparams") as writer:
-        writer.file_writer.add_summary(_to_tbx(hp.hparams_config_pb(hparams, metrics)))
+    writer = SummaryWriter(str(logdir), filename_suffix=".hparams")
+    writer.file_writer.add_summary(_to_tbx(hp.hparams_config_pb(hparams, metrics)))
+    _closed(writer)
 
 
 def tile(images: np.ndarray, n_cols: int, pad: int = 1) -> np.ndarray:
@@ -89,16 +117,17 @@ def write_cell_run(
     precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
     recall = tp / np.maximum(tp + fn, 1)
     tagged = {**{f"metrics/{k}": v for k, v in ev.scalars().items()}, **scalars}
-    with SummaryWriter(str(run_dir)) as writer:
-        for tag, value in tagged.items():
-            writer.add_scalar(tag, float(value), global_step=0)
-        writer.add_pr_curve_raw("pr_curve", tp, fp, tn, fn, precision, recall,
-                                global_step=0, num_thresholds=n_thresholds)
-        writer.add_image("matches/query_best_true", examples, global_step=0, dataformats="HW")
-        if basis_images is not None and len(basis_images):
-            grid = tile(normalise_each(basis_images), n_cols=min(4, len(basis_images)))
-            writer.add_image(basis_tag, grid, global_step=0, dataformats="HW")
-        writer.file_writer.add_summary(_to_tbx(hp.hparams_pb(hparams, trial_id=trial_id)))
+    writer = SummaryWriter(str(run_dir))
+    for tag, value in tagged.items():
+        writer.add_scalar(tag, float(value), global_step=0)
+    writer.add_pr_curve_raw("pr_curve", tp, fp, tn, fn, precision, recall,
+                            global_step=0, num_thresholds=n_thresholds)
+    writer.add_image("matches/query_best_true", examples, global_step=0, dataformats="HW")
+    if basis_images is not None and len(basis_images):
+        grid = tile(normalise_each(basis_images), n_cols=min(4, len(basis_images)))
+        writer.add_image(basis_tag, grid, global_step=0, dataformats="HW")
+    writer.file_writer.add_summary(_to_tbx(hp.hparams_pb(hparams, trial_id=trial_id)))
+    _closed(writer)
 
 
 class TrainingRun:
@@ -134,4 +163,5 @@ class TrainingRun:
 
     def close(self) -> None:
         if self._writer is not None:
-            self._writer.close()
+            writer, self._writer = self._writer, None
+            _closed(writer)
