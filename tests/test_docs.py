@@ -64,3 +64,15 @@ def test_relative_links_resolve():
                 if not (page.parent / path).exists():
                     broken.append(f"{page.relative_to(REPO)}: {target}")
     assert not broken, f"links to missing files: {broken}"
+
+
+def test_the_refusal_catalogue_lists_every_bad_input_case():
+    from tests import test_bad_input
+
+    catalogue = (REPO / "docs" / "refusals.md").read_text()
+    cases = [*test_bad_input.DATA_CASES, *test_bad_input.CONFIG_CASES,
+             *test_bad_input.LOGDIR_CASES]  # fmt: skip
+    missing = [case for case in cases if f"| {case} |" not in catalogue]
+    assert not missing, f"docs/refusals.md lacks {missing}"
+    for module, name in re.findall(r"`(test_\w+\.py)::(\w+)", catalogue):
+        assert f"def {name}(" in (REPO / "tests" / module).read_text(), f"{module}::{name}"
