@@ -8,6 +8,7 @@ can without JAX first and imports this module only then.
 
 from __future__ import annotations
 
+import functools
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -132,8 +133,9 @@ def differences_to_pca(rows: list[ResultRow], logdir: Path, cfg: SweepConfig
     in curve.npz are left out."""
     selected = selected_rows(rows)
 
-    def correct(row):
-        with np.load(logdir / row.run / "curve.npz") as z:
+    @functools.cache  # each pair's PCA row is every other row's baseline: read it once
+    def correct(run: str):
+        with np.load(logdir / run / "curve.npz") as z:
             return z["best_correct"] if "best_correct" in z else None
 
     out = {}
@@ -141,7 +143,7 @@ def differences_to_pca(rows: list[ResultRow], logdir: Path, cfg: SweepConfig
         base = baseline_of(row, selected)
         if row.method == "pca" or base is None:
             continue
-        mine, theirs = correct(row), correct(base)
+        mine, theirs = correct(row.run), correct(base.run)
         if mine is None or theirs is None or mine.shape != theirs.shape:
             continue
         out[row.run] = paired_recall_difference(

@@ -120,14 +120,13 @@ def pca_components_needed(cfg: SweepConfig, n_samples: int, n_features: int) -> 
     limit. From the configured counts, not the ones still to do, so a resumed sweep fits
     the same components."""
     limit = pca.rank_limit(n_samples, n_features)
-    counts = [k for k in cfg.removed_pcs]
     needed = [1]
     if "pca" in cfg.methods:
-        needed.append(max(counts))
+        needed.append(max(cfg.removed_pcs))
     if "ica" in cfg.methods:
         if cfg.ica.n_components in (None, "all"):
             return None
-        needed.append(max(counts) + int(cfg.ica.n_components))
+        needed.append(max(cfg.removed_pcs) + int(cfg.ica.n_components))
     if "lda" in cfg.methods:
         needed.append(cfg.lda.n_components)
     return min(max(needed), limit)
