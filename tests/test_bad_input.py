@@ -142,6 +142,9 @@ def test_bad_data(case, tmp_path):
 
 CONFIG_CASES = {
     "unknown key": (["method=raw"], ["method"]),
+    "a key that moved": (["train.val_fraction=0.2"],
+                         ["train.val_fraction moved to split.val_fraction",
+                          "split.val_fraction=0.2"]),
     "wrong type": (["tolerance=two"], ["tolerance"]),
     "bad pair name": (["season_pairs=summer_fall"], ["summer_fall", "season_pairs"]),
     "pair of one season": (["season_pairs=fall-fall"], ["fall-fall"]),

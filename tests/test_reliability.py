@@ -205,13 +205,7 @@ def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
     args = [*SMALL, "methods=[raw,pca]", "removed_pcs=[0,5,20]", f"logdir={logdir}"]
     # A cell's TensorBoard run without basis images is ~42 KB, with them ~54 KB: the first
     # PCA cell that shows removed components cannot be written.
-    # Files may grow to 48 KiB (ulimit -f counts KiB); past it writes fail with EFBIG, as on
-    # a full disk, since the shell ignores SIGXFSZ for the sweep it starts. A shell, not
-    # preexec_fn: forking this JAX process could deadlock.
-    sweep = shlex.join([sys.executable, "-m", "experiments.sweep", *args])
-    proc = subprocess.run(["bash", "-c", f"ulimit -f 48; trap '' XFSZ; exec {sweep}"], cwd=REPO,
-                          env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True,
-                          text=True)  # fmt: skip
+    proc = _limited(args, 48)  # files up to 48 KiB
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 1 and len(lines) == 1, proc.stderr
     assert "Traceback" not in proc.stderr and "File too large" in lines[0]
@@ -229,6 +223,37 @@ def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
     assert not (logdir / ".incomplete").exists()
     for row in rows:  # every cell's run is whole: TensorBoard reads its metrics back
         assert read_run(logdir / row.run).Scalars("metrics/recall_at_1")
+
+
+def _limited(args: list[str], kib: int) -> subprocess.CompletedProcess:
+    """The sweep with files limited to ``kib`` KiB: past it writes fail with EFBIG, as on a
+    full disk, since the shell ignores SIGXFSZ for the sweep it starts. A shell, not
+    preexec_fn: forking this JAX process could deadlock."""
+    sweep = shlex.join([sys.executable, "-m", "experiments.sweep", *args])
+    return subprocess.run(["bash", "-c", f"ulimit -f {kib}; trap '' XFSZ; exec {sweep}"],
+                          cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
+                          capture_output=True, text=True)  # fmt: skip
+
+
+def test_a_checkpoint_that_cannot_be_written_is_one_line_and_the_rerun_completes(tmp_path):
+    logdir, models = tmp_path / "runs", tmp_path / "models"
+    args = [*SMALL, "methods=[raw,fae]", "season_pairs=summer-fall", "fae.objective=reconstruct",
+            f"logdir={logdir}", f"train.checkpoint_dir={models}"]  # fmt: skip
+    # TensorBoard runs stay under 100 KiB; the FAE's optimizer state is a file of ~1.1 MB,
+    # which orbax (TensorStore, in its own threads) fails to write.
+    proc = _limited(args, 600)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr and "File too large (EFBIG)" in lines[0]
+    assert str(models) in lines[0] and "rerun the same command" in lines[0]
+    saved = read_results(logdir / "results.csv")
+    assert [r.method for r in saved] == ["raw"] and "1 finished cell(s)" in lines[0]
+    again = run_cli(*args)
+    assert again.returncode == 0, again.stderr
+    rows = read_results(logdir / "results.csv")
+    assert sorted(r.method for r in rows) == ["fae", "raw"]
+    encode, params = load_encoder(models / "runs" / "summer-fall" / "fae")
+    assert encode(params, np.zeros((2, 32, 64), np.float32)).shape[0] == 2
 
 
 def test_a_full_disk_is_one_line_and_the_same_command_completes_once_space_is_freed(tmp_path):

@@ -23,6 +23,12 @@ waits on the others. The checkpoint folder must then be on a file system all hos
 
 from __future__ import annotations
 
+import contextlib
+import os
+import re
+import sys
+import tempfile
+import time
 from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
 
@@ -133,7 +139,62 @@ def save(directory: Path, step: int, state: NamedTuple, meta: dict) -> None:
     # from one process, its numpy copy is.
     state = jax.tree.map(np.asarray, state)
     Path(directory).mkdir(parents=True, exist_ok=True)
-    with _manager(directory) as manager:
-        manager.save(step, args=ocp.args.Composite(
-            state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave({**meta, "format": FORMAT})))
-        manager.wait_until_finished()
+    try:
+        with _orbax_noise_held(), _manager(directory) as manager:
+            manager.save(step, args=ocp.args.Composite(
+                state=ocp.args.StandardSave(state),
+                meta=ocp.args.JsonSave({**meta, "format": FORMAT})))  # fmt: skip
+            manager.wait_until_finished()
+    except (ValueError, RuntimeError) as err:
+        raise _os_error(err, directory) from None
+
+
+@contextlib.contextmanager
+def _orbax_noise_held():
+    """Hold what is written to stderr (file descriptor 2) while orbax saves, and pass it on
+    only if the save succeeds. A failed write makes orbax's worker threads log the same fault
+    several times over, with tracebacks, before the error reaches us; the sweep then says it
+    in one line of its own."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        except BaseException:
+            _settle(held)
+            _restore_stderr(saved)
+            raise
+        _restore_stderr(saved)
+        held.seek(0)
+        noise = held.read()
+    if noise:
+        sys.stderr.buffer.write(noise)
+        sys.stderr.flush()
+
+
+def _settle(held, quiet_s: float = 0.3, limit_s: float = 3.0) -> None:
+    """Wait (at most ``limit_s``) until orbax's threads have said all they will about a
+    failed save: nothing new in ``held`` for ``quiet_s``."""
+    end = time.monotonic() + limit_s
+    size = -1
+    while time.monotonic() < end and os.fstat(held.fileno()).st_size != size:
+        size = os.fstat(held.fileno()).st_size
+        time.sleep(quiet_s)
+
+
+def _restore_stderr(saved: int) -> None:
+    sys.stderr.flush()
+    os.dup2(saved, 2)
+    os.close(saved)
+
+
+def _os_error(err: Exception, directory: Path) -> Exception:
+    """A write fault orbax (TensorStore) reports as ``ValueError: RESOURCE_EXHAUSTED ...
+    [os_error_code='28']`` becomes the ``OSError`` it was (ENOSPC here), naming the model's
+    folder, so the sweep reports it like any other full disk; anything else is kept."""
+    code = re.search(r"os_error_code='(\d+)'", str(err))
+    if code is None:
+        return err
+    number = int(code.group(1))
+    return OSError(number, os.strerror(number), str(directory))

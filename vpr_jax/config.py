@@ -442,6 +442,10 @@ _LIST_KEYS = ("methods", "removed_pcs", "data.seasons", "cae.channels", "cae.ker
               "sequence.ds", "fae.objective", "cae.objective")
 
 
+# Keys that moved: an old command line gets the new name instead of "unknown key".
+MOVED_KEYS = {"train.val_fraction": "split.val_fraction"}
+
+
 def _normalise_cli(argv: list[str]) -> list[str]:
     """Accept ``methods=raw,pca`` as well as ``methods=[raw,pca]`` and a list of pairs."""
     out = []
@@ -449,6 +453,9 @@ def _normalise_cli(argv: list[str]) -> list[str]:
         key, sep, value = arg.partition("=")
         if not sep:
             raise UserError(f"argument {arg!r} is not key=value: write e.g. season_pairs=all")
+        if key in MOVED_KEYS:
+            raise UserError(f"{key} moved to {MOVED_KEYS[key]}: write {MOVED_KEYS[key]}={value}"
+                            " (one validation stretch serves early stopping and selection)")
         if key in _LIST_KEYS and value and not value.startswith("["):
             value = f"[{value}]"
         if key == "season_pairs" and value.startswith("["):

@@ -21,6 +21,7 @@ the problem and the fix.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
@@ -255,10 +256,10 @@ def _index_files(
     with os.scandir(folder) as entries:
         for entry in entries:
             # ._name files are macOS metadata next to the real images, not images.
-            if entry.name.startswith(".") or not entry.is_file():
+            if entry.name.startswith("."):
                 continue
             frame = match(entry.name)
-            if frame is None:
+            if frame is None or not _is_image_file(entry):
                 continue
             if frame in found:
                 first, second = sorted([found[frame].name, entry.name])
@@ -270,6 +271,24 @@ def _index_files(
     if not found:
         raise UserError(f"season folder {folder} holds no images: {empty_hint}")
     return dict(sorted(found.items()))
+
+
+def _is_image_file(entry: os.DirEntry) -> bool:
+    """Whether a directory entry named like a frame is a file to read; a symbolic link
+    that loops or points nowhere is refused (it is a frame the user meant to have)."""
+    try:
+        if entry.is_file():
+            return True
+        if entry.is_symlink():
+            os.stat(entry.path)
+    except OSError as err:
+        if entry.is_symlink():
+            what = "loops" if err.errno == errno.ELOOP else "points to a missing file"
+            raise UserError(f"image {entry.path} is a symbolic link that {what} "
+                            f"({os.readlink(entry.path)}): fix the link or remove it") from None
+        raise UserError(f"image {entry.path} cannot be read ({err.strerror}): check that it "
+                        "exists and that you may read it") from None
+    return False
 
 
 # --------------------------------------------------------------------------------------------
