@@ -21,9 +21,10 @@ from vpr_jax.bootstrap import cell_intervals
 from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig
 from vpr_jax.data import Route
 from vpr_jax.data.splits import Split
+from vpr_jax.ground_truth import Tolerance
 from vpr_jax.matching import top_k_matches
 from vpr_jax.methods import Descriptors, PairData, model_name
-from vpr_jax.metrics import Evaluation, evaluate_top_k
+from vpr_jax.metrics import Evaluation, evaluate_matches
 from vpr_jax.progress import Log
 from vpr_jax.results import ResultRow, append_results
 from vpr_jax.sequence import sequence_top_k_cosine, velocities
@@ -34,21 +35,29 @@ INCOMPLETE = ".incomplete"  # TensorBoard runs being written; moved into place w
 TopK = tuple[np.ndarray, np.ndarray]  # (scores, database indices), each (n_queries, K)
 
 
-def pair_data(route: Route, split: Split, db: str, query: str, database: str) -> PairData:
-    """Images of one pair; ``database="all"`` matches the queries against every frame of the
-    database season (training places included), not only its test places."""
+def pair_data(route: Route, split: Split, db: str, query: str, database: str,
+              tolerance: int) -> PairData:
+    """Images of one pair of an aligned route, ground truth ``|i - j| <= tolerance`` on
+    frame ids; ``database="all"`` matches the queries against every frame of the database
+    season (training places included), not only its test places."""
     images = route.images
     everything = database == "all"  # the season's own array: no copy of the whole route
+    db_ids = route.frame_ids if everything else route.frame_ids[split.test]
+    query_ids, val_ids = route.frame_ids[split.test], route.frame_ids[split.val]
     return PairData(
         db_season=db,
         query_season=query,
         train=np.concatenate([images[db][split.train], images[query][split.train]]),
         db=images[db] if everything else images[db][split.test],
         query=images[query][split.test],
-        db_ids=route.frame_ids if everything else route.frame_ids[split.test],
-        query_ids=route.frame_ids[split.test],
-        val=np.concatenate([images[db][split.val], images[query][split.val]]),
-        val_ids=route.frame_ids[split.val],
+        db_ids=db_ids,
+        query_ids=query_ids,
+        truth=Tolerance.of(query_ids, db_ids, tolerance),
+        val_db=images[db][split.val],
+        val_query=images[query][split.val],
+        val_db_ids=val_ids,
+        val_query_ids=val_ids,
+        val_truth=Tolerance.of(val_ids, val_ids, tolerance),
     )
 
 
@@ -56,7 +65,7 @@ def _part(desc: Descriptors, pair: PairData, part: str):
     """(queries, database, query ids, database ids) of the test or the validation places."""
     if part == "test":
         return desc.query, desc.db, pair.query_ids, pair.db_ids
-    return desc.val_query, desc.val_db, pair.val_ids, pair.val_ids
+    return desc.val_query, desc.val_db, pair.val_query_ids, pair.val_db_ids
 
 
 def match(desc: Descriptors, pair: PairData, ds: int, counts: tuple[int, ...],
@@ -113,7 +122,7 @@ def _write_run(logdir: Path, name: str, cfg: SweepConfig, pair: PairData, desc: 
                  "removed_pcs": float(k), "ds": float(ds)},
         trial_id=name,
         n_thresholds=cfg.tb.pr_thresholds,
-        examples=match_examples(pair.query, pair.db, pair.query_ids, pair.db_ids, top[1][:, 0],
+        examples=match_examples(pair.query, pair.db, pair.truth, top[1][:, 0],
                                 cfg.tb.n_match_examples),
         basis_images=desc.basis[desc.removed_pcs.index(k)],
         basis_tag=f"basis/{desc.basis_name}",
@@ -137,10 +146,8 @@ def save_cell(logdir: Path, cfg: SweepConfig, pair: PairData, desc: Descriptors,
     without a row is redone by a resumed sweep). Returns the row."""
     name = run_name(pair.name, desc.method, k, ds, desc.objective)
     shutil.rmtree(logdir / name, ignore_errors=True)  # left by a crash before its row
-    ev = evaluate_top_k(*top, pair.query_ids, pair.db_ids, cfg.tolerance,
-                        pr_convention=cfg.pr_convention)  # fmt: skip
-    val = evaluate_top_k(*val_top, pair.val_ids, pair.val_ids, cfg.tolerance,
-                         pr_convention=cfg.pr_convention)  # fmt: skip
+    ev = evaluate_matches(*top, pair.truth, pr_convention=cfg.pr_convention)
+    val = evaluate_matches(*val_top, pair.val_truth, pr_convention=cfg.pr_convention)
     ci = cell_intervals(ev.best_scores, ev.best_correct, ev.has_match,
                         block_length=block_length(cfg, ds), resamples=cfg.bootstrap.resamples,
                         seed=cfg.seed, pr_convention=cfg.pr_convention)  # fmt: skip

@@ -223,7 +223,8 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                 if not left:
                     continue
                 if data is None:  # built on first use
-                    data = pair_data(plan.route, plan.split, db, query, cfg.split.database)
+                    data = pair_data(plan.route, plan.split, db, query, cfg.split.database,
+                                     cfg.tolerance)
                 if method in USES_PCA_FIT and ctx.pca_fit is None:  # one fit per pair
                     ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
                 todo_ctx = ctx._replace(

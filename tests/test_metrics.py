@@ -87,6 +87,13 @@ def ref_recall_at_100p(precision, recall):
     return max(r for p, r in zip(precision, recall, strict=True) if p == 1.0)
 
 
+def ref_extended_precision(precision, recall):
+    """VPR-Bench's EP = (P_R0 + R_P100) / 2 from the loop curve: the precision at the first
+    (strictest) threshold and the largest recall at precision 1 (0 if none)."""
+    at_full = [r for p, r in zip(precision[1:], recall[1:], strict=True) if p == 1.0]
+    return (precision[1] + (max(at_full) if at_full else 0.0)) / 2
+
+
 def ref_recall_at_k(s_dbq, gt, k):
     """VPR_Tutorial recallAtK: drop queries without a true match; ties to the lowest index."""
     hits = total = 0
@@ -112,6 +119,7 @@ def ref_evaluate(sim, query_ids, db_ids, tol, convention, ks=(1, 5, 10)):
         "recall_at_100_precision": ref_recall_at_100p(p, r),
         "recall_at_5": rk[5],
         "recall_at_10": rk[10],
+        "extended_precision": ref_extended_precision(p, r),
         "recall_at_k": rk,
         "p": p,
         "r": r,
@@ -628,3 +636,26 @@ def test_float32_and_integer_similarities():
     simu8 = np.round((sim - sim.min()) * 10).astype(np.uint8)  # heavy ties, unsigned
     c = evaluate(simu8, qids, dids, 1)
     assert_matches_ref(c, ref_evaluate(simu8.astype(np.float64), qids, dids, 1, "vpr_bench"))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_extended_precision_matches_sklearn_curve(seed):
+    """EP from scikit-learn's PR curve of the best matches (the vpr_bench convention): its
+    strictest threshold's precision plus its largest recall at precision 1, halved."""
+    sim, q, d = random_case(seed, ties=seed % 2 == 1)
+    ev = evaluate(sim, q, d, 2)
+    precision, recall, _ = precision_recall_curve(ev.best_correct, ev.best_scores)
+    precision, recall = precision[:-1], recall[:-1]  # drop sklearn's appended (1, 0)
+    at_full = recall[precision == 1.0]
+    expected = (precision[-1] + (at_full.max() if at_full.size else 0.0)) / 2
+    assert ev.extended_precision == pytest.approx(expected, abs=1e-12)
+    assert 0.0 <= ev.extended_precision <= 1.0
+
+
+def test_extended_precision_hand_cases():
+    # most confident match wrong: R_P100 = 0, P_R0 = 0
+    ev = evaluate(np.array([[0.9, 0.0], [0.0, 0.5]]), np.array([10, 20]), np.array([20, 10]), 0)
+    assert ev.extended_precision == 0.0
+    # all right: P_R0 = 1 and R_P100 = 1
+    ev = evaluate(np.array([[0.9, 0.0], [0.0, 0.5]]), np.array([10, 20]), np.array([10, 20]), 0)
+    assert ev.extended_precision == 1.0

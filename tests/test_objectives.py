@@ -32,7 +32,7 @@ def test_training_pairs_follow_frame_ids_not_positions(tmp_path):
                   range(2, 42))
     route = read_image_release(tmp_path, ["summer", "fall"], log=lambda line: None)
     split = make_split(route.frame_ids, SplitConfig(n_train=20, n_test=10, gap=2))
-    data = pair_data(route, split, "summer", "fall", "test")
+    data = pair_data(route, split, "summer", "fall", "test", 2)
     pairs = objectives.training_data("cross_season", data.train)
     ids = route.frame_ids[split.train]
     assert ids[0] == 2 and len(pairs) == len(ids) == 16  # 20 less 2 validating, a gap of 2

@@ -32,28 +32,41 @@ from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import diff_pca, ica, lda, objectives, pca
 from vpr_jax.encoders.train import TrainingLog, fit_autoencoder
 from vpr_jax.errors import UserError
+from vpr_jax.ground_truth import GroundTruth
 from vpr_jax.logdir import lock_folder, training_identity
 from vpr_jax.matching import degenerate_rows
 
 
 class PairData(NamedTuple):
+    """One pair's images and ground truth: what every method fits on and is scored with.
+
+    Aligned routes (``experiments.cells.pair_data``): ``train`` holds the training places of
+    both seasons back to back, row i of each half one place (``aligned_training``), and the
+    validation places are aligned the same way. Unaligned benchmarks
+    (``experiments.cells.benchmark_pair``) train on their database images, or on an aligned
+    route's training places (``data.train_source``).
+    """
+
     db_season: str
     query_season: str
-    train: np.ndarray  # (2 * n_train, 32, 64): training places of BOTH seasons
+    train: np.ndarray  # (n_train_images, 32, 64)
     db: np.ndarray  # (n_db, 32, 64) database season, test places (or every frame)
     query: np.ndarray  # (n_test, 32, 64) query season, test places
-    db_ids: np.ndarray  # original frame indices of the database images
+    db_ids: np.ndarray  # route positions of the database images (frame ids: sequences)
     query_ids: np.ndarray
-    val: np.ndarray  # (2 * n_val, 32, 64): validation places of both seasons, database first
-    val_ids: np.ndarray  # (n_val,) their frame indices
+    truth: GroundTruth  # correct database positions of each query
+    val_db: np.ndarray  # (n_val_db, 32, 64): the validation database
+    val_query: np.ndarray  # (n_val_query, 32, 64): the validation queries
+    val_db_ids: np.ndarray
+    val_query_ids: np.ndarray
+    val_truth: GroundTruth
+    aligned_training: bool = True  # train (and val) are two seasons' aligned places
 
     @property
-    def val_db(self) -> np.ndarray:
-        return self.val[: len(self.val_ids)]
-
-    @property
-    def val_query(self) -> np.ndarray:
-        return self.val[len(self.val_ids) :]
+    def val(self) -> np.ndarray:
+        """The validation images, database first: aligned pairs when ``aligned_training``
+        (what the auto-encoders' early stopping scores)."""
+        return np.concatenate([self.val_db, self.val_query])
 
     @property
     def name(self) -> str:
@@ -63,6 +76,8 @@ class PairData(NamedTuple):
     def aligned_train(self) -> tuple[np.ndarray, np.ndarray]:
         """(database season, query season) training images: row i of both shows the same
         place (the same frame id: seasons are aligned by frame id when loaded)."""
+        if not self.aligned_training:
+            raise ValueError(f"pair {self.name} has no aligned training places")
         n = len(self.train) // 2
         return self.train[:n], self.train[n:]
 
@@ -153,8 +168,10 @@ def _encode(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array, flo
 
 
 def _encode_val(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array]:
-    both = encode(pair.val)
-    return both[: len(pair.val_ids)], both[len(pair.val_ids) :]
+    if pair.aligned_training:  # one call: the shapes the training already compiled for
+        both = encode(pair.val)
+        return both[: len(pair.val_db)], both[len(pair.val_db) :]
+    return encode(pair.val_db), encode(pair.val_query)
 
 
 def degenerate_warning(db, query) -> str | None:

@@ -80,12 +80,16 @@ from typing import Literal, NamedTuple
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
+from vpr_jax.ground_truth import GroundTruth, Tolerance
+
 __all__ = [
     "PR_CONVENTIONS",
     "Evaluation",
     "correct_matches",
     "evaluate",
+    "evaluate_matches",
     "evaluate_top_k",
+    "extended_precision",
     "has_true_match",
     "pr_counts",
     "pr_curve",
@@ -102,6 +106,7 @@ SCALAR_NAMES: tuple[str, ...] = (
     "recall_at_100_precision",
     "recall_at_5",
     "recall_at_10",
+    "extended_precision",
 )
 
 
@@ -128,6 +133,7 @@ class Evaluation(NamedTuple):
     has_match: Bool[np.ndarray, " nq"]
     recall_at_k: dict[int, float]
     pr_convention: str
+    extended_precision: float = float("nan")
 
     @property
     def recall_at_5(self) -> float:
@@ -138,7 +144,7 @@ class Evaluation(NamedTuple):
         return self.recall_at_k[10]
 
     def scalars(self) -> dict[str, float]:
-        """The six scalar metrics, by name (the results.csv columns), as Python floats."""
+        """The scalar metrics, by name (the results.csv columns), as Python floats."""
         return {name: float(getattr(self, name)) for name in SCALAR_NAMES}
 
 
@@ -155,26 +161,6 @@ def _check_convention(pr_convention: str) -> None:
         raise ValueError(
             f"unknown pr_convention {pr_convention!r}: use one of {', '.join(PR_CONVENTIONS)}"
         )
-
-
-def _check_tolerance(tolerance: int) -> int:
-    if isinstance(tolerance, bool) or not isinstance(tolerance, int | np.integer):
-        raise ValueError(f"tolerance must be a non-negative integer, got {tolerance!r}")
-    if tolerance < 0:
-        raise ValueError(f"tolerance must be a non-negative integer, got {tolerance}")
-    return int(tolerance)
-
-
-def _as_ids(ids: np.ndarray, name: str) -> np.ndarray:
-    arr = np.asarray(ids)
-    if arr.ndim != 1:
-        raise ValueError(f"{name} must be one-dimensional, got shape {arr.shape}")
-    if np.issubdtype(arr.dtype, np.integer):
-        return arr.astype(np.int64, copy=False)
-    if np.issubdtype(arr.dtype, np.floating) and np.all(np.isfinite(arr)):
-        if np.array_equal(arr, np.round(arr)):
-            return arr.astype(np.int64)
-    raise ValueError(f"{name} must hold integer frame ids, got dtype {arr.dtype}")
 
 
 def _as_bool(x: np.ndarray, name: str, n: int) -> np.ndarray:
@@ -201,16 +187,9 @@ def _check_scores(scores: np.ndarray, name: str) -> np.ndarray:
 def has_true_match(
     query_ids: Int[np.ndarray, " nq"], db_ids: Int[np.ndarray, " ndb"], tolerance: int
 ) -> Bool[np.ndarray, " nq"]:
-    """Whether some database frame lies within ``tolerance`` of each query's frame id.
-
-    ``db_ids`` may be in any order; a sorted copy is searched (O((Nq + Ndb) log Ndb)).
-    """
-    q = _as_ids(query_ids, "query_ids")
-    d = np.sort(_as_ids(db_ids, "db_ids"))
-    tol = _check_tolerance(tolerance)
-    lo = np.searchsorted(d, q - tol, side="left")
-    hi = np.searchsorted(d, q + tol, side="right")
-    return hi > lo
+    """Whether some database frame lies within ``tolerance`` of each query's frame id
+    (``vpr_jax.ground_truth.Tolerance``; ``db_ids`` in any order)."""
+    return Tolerance.of(query_ids, db_ids, tolerance).has_match()
 
 
 def correct_matches(
@@ -220,20 +199,7 @@ def correct_matches(
     tolerance: int,
 ) -> Bool[np.ndarray, "nq k"]:
     """Whether each retrieved database index (into ``db_ids``) is a true match of its query."""
-    q = _as_ids(query_ids, "query_ids")
-    d = _as_ids(db_ids, "db_ids")
-    tol = _check_tolerance(tolerance)
-    idx = np.asarray(indices)
-    if idx.ndim != 2 or idx.shape[0] != q.shape[0]:
-        raise ValueError(f"indices must have shape ({q.shape[0]}, K), got {idx.shape}")
-    if not np.issubdtype(idx.dtype, np.integer):
-        raise ValueError(f"indices must be integers, got dtype {idx.dtype}")
-    if idx.size and (idx.min() < 0 or idx.max() >= d.shape[0]):
-        raise ValueError(
-            f"indices must lie in [0, {d.shape[0]}) (positions in db_ids), "
-            f"got [{idx.min()}, {idx.max()}]"
-        )
-    return np.abs(d[idx] - q[:, None]) <= tol
+    return Tolerance.of(query_ids, db_ids, tolerance).correct(indices)
 
 
 # ------------------------------------------------------------------------------- PR curve
@@ -367,6 +333,20 @@ def pr_counts(
     return tp, fp, tn, fn
 
 
+def extended_precision(precision: PRPoints, recall: PRPoints) -> float:
+    """VPR-Bench's extended precision ``EP = (P_R0 + R_P100) / 2`` of a PR curve from
+    :func:`pr_curve` (start point first): ``P_R0`` is the precision at the lowest recall the
+    method reaches (its strictest threshold, i.e. of its most confident matches), ``R_P100``
+    the largest recall at precision 1, or 0 when even the most confident match is wrong
+    (Ferrarini et al. 2020; Zaffar et al., VPR-Bench, 2021). It lies in [0, 1]: 1 when the
+    most confident match is right and the whole curve holds precision 1."""
+    p, r = np.asarray(precision)[1:], np.asarray(recall)[1:]  # without the start point
+    if p.size == 0:
+        return 0.0
+    at_full = r[p == 1.0]
+    return float((p[0] + (at_full.max() if at_full.size else 0.0)) / 2)
+
+
 # ---------------------------------------------------------------------------- evaluation
 
 
@@ -380,26 +360,39 @@ def evaluate_top_k(
     pr_convention: PRConvention = "vpr_bench",
     ks: tuple[int, ...] = DEFAULT_KS,
 ) -> Evaluation:
-    """All metrics from each query's top-K matches (see the module docstring).
+    """All metrics from each query's top-K matches, ground truth ``|q - d| <= tolerance``
+    on frame ids: :func:`evaluate_matches` with ``Tolerance``."""
+    return evaluate_matches(top_scores, top_indices, Tolerance.of(query_ids, db_ids, tolerance),
+                            pr_convention=pr_convention, ks=ks)
 
-    ``top_scores[i]`` must be sorted best first and ``top_indices[i]`` index ``db_ids``.
-    Recall@K for every K in ``ks`` (1, 5 and 10 are always added) needs ``K >= min(k, Ndb)``
-    columns; with K >= Ndb, larger k are clipped to Ndb. Cost O(Nq K + (Nq + Ndb) log Ndb).
+
+def evaluate_matches(
+    top_scores: Float[np.ndarray, "nq k"],
+    top_indices: Int[np.ndarray, "nq k"],
+    truth: GroundTruth,
+    *,
+    pr_convention: PRConvention = "vpr_bench",
+    ks: tuple[int, ...] = DEFAULT_KS,
+) -> Evaluation:
+    """All metrics from each query's top-K matches (see the module docstring) against any
+    ground truth (``vpr_jax.ground_truth``: a tolerance on frame ids or explicit sets).
+
+    ``top_scores[i]`` must be sorted best first and ``top_indices[i]`` hold database
+    positions. Recall@K for every K in ``ks`` (1, 5 and 10 are always added) needs ``K >=
+    min(k, Ndb)`` columns; with K >= Ndb, larger k are clipped to Ndb. Cost O(Nq K log)
+    on top of the ground truth's own lookups.
     """
     _check_convention(pr_convention)
-    tol = _check_tolerance(tolerance)
-    q = _as_ids(query_ids, "query_ids")
-    d = _as_ids(db_ids, "db_ids")
-    if q.shape[0] == 0:
+    n_q, n_db = truth.n_queries, truth.n_db
+    if n_q == 0:
         raise ValueError("no queries to evaluate: query_ids is empty")
-    if d.shape[0] == 0:
+    if n_db == 0:
         raise ValueError("no database frames to match against: db_ids is empty")
     scores = _check_scores(top_scores, "top_scores")
     idx = np.asarray(top_indices)
-    if scores.ndim != 2 or scores.shape[0] != q.shape[0] or scores.shape[1] == 0:
+    if scores.ndim != 2 or scores.shape[0] != n_q or scores.shape[1] == 0:
         raise ValueError(
-            f"top_scores must have shape ({q.shape[0]}, K>=1) to match query_ids, "
-            f"got {scores.shape}"
+            f"top_scores must have shape ({n_q}, K>=1) to match query_ids, got {scores.shape}"
         )
     if idx.shape != scores.shape:
         raise ValueError(
@@ -408,7 +401,6 @@ def evaluate_top_k(
     if not np.all(scores[:, 1:] <= scores[:, :-1]):
         raise ValueError("top_scores rows must be sorted best first (non-increasing)")
     n_cols = scores.shape[1]
-    n_db = d.shape[0]
     all_ks = _all_ks(ks)
     if all_ks[0] < 1:
         raise ValueError(f"every K in ks must be >= 1, got {tuple(ks)}")
@@ -419,15 +411,14 @@ def evaluate_top_k(
             f"keep the top {need} (or more) per query"
         )
 
-    correct = correct_matches(idx, q, d, tol)
-    match = has_true_match(q, d, tol)
+    correct = truth.correct(idx)
+    match = truth.has_match()
     best_scores = scores[:, 0]
     best_correct = correct[:, 0]
 
     precision, recall, thresholds = pr_curve(
         best_scores, best_correct, match, pr_convention=pr_convention
     )
-    n_q = q.shape[0]
     recall_at_1 = float(best_correct.sum() / n_q)
     precision_at_full_recall = float(precision[-1])
     auc_pr = float(np.sum(np.diff(recall) * (precision[1:] + precision[:-1]) / 2.0))
@@ -453,6 +444,7 @@ def evaluate_top_k(
         has_match=match,
         recall_at_k={k: recall_at_k[k] for k in all_ks},
         pr_convention=pr_convention,
+        extended_precision=extended_precision(precision, recall),
     )
 
 

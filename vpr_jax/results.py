@@ -24,7 +24,7 @@ ResultRow = NamedTuple("ResultRow", [
     ("n_train", int),  # images the encoder was fitted on, both seasons
     ("n_test", int),  # queries
     ("tolerance", int),
-    *((name, float) for name in SCALAR_NAMES),  # the six metrics (vpr_jax.metrics)
+    *((name, float) for name in SCALAR_NAMES),  # the seven metrics (vpr_jax.metrics)
     ("recall_at_1_ci_low", float),  # 95% block-bootstrap interval (vpr_jax.bootstrap)
     ("recall_at_1_ci_high", float),
     ("auc_pr_ci_low", float),
@@ -50,6 +50,7 @@ ADDED_COLUMNS = {
                                                "auc_pr_ci_low", "auc_pr_ci_high",
                                                "val_recall_at_1", "val_auc_pr")},  # fmt: skip
     "selected": lambda row: "0",  # marked again whenever the table is written
+    "extended_precision": lambda row: "nan",
 }
 
 

@@ -17,6 +17,7 @@ from tensorboard.plugins.hparams import summary_v2 as hp
 from tensorboardX import SummaryWriter
 from tensorboardX.proto.summary_pb2 import Summary
 
+from vpr_jax.ground_truth import GroundTruth
 from vpr_jax.metrics import Evaluation, pr_counts
 
 # tensorboardX writes event files from a thread of its own: an OSError there (a full disk)
@@ -80,13 +81,15 @@ def normalise_each(images: np.ndarray) -> np.ndarray:
     return (images - lo) / np.maximum(hi - lo, 1e-12)
 
 
-def match_examples(query, db, query_ids, db_ids, best_indices, n: int) -> np.ndarray:
-    """Rows of query | best match | true match for n queries spread over the test stretch."""
+def match_examples(query, db, truth: GroundTruth, best_indices, n: int) -> np.ndarray:
+    """Rows of query | best match | a true match (``truth.a_match``: the nearest frame for
+    a tolerance; black when the query has none) for n queries spread over the queries."""
     picks = np.linspace(0, len(query) - 1, min(n, len(query))).round().astype(int)
+    true = truth.a_match()
     rows = []
     for q in picks:
-        true = int(np.argmin(np.abs(db_ids - query_ids[q])))
-        rows += [query[q], db[best_indices[q]], db[true]]
+        rows += [query[q], db[best_indices[q]],
+                 db[true[q]] if true[q] >= 0 else np.zeros_like(db[0])]
     return tile(np.stack(rows), n_cols=3)
 
 
