@@ -19,7 +19,7 @@ from jax.sharding import Mesh
 
 from vpr_jax.bootstrap import cell_intervals
 from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig
-from vpr_jax.data import Route
+from vpr_jax.data import Benchmark, Route
 from vpr_jax.data.splits import Split
 from vpr_jax.ground_truth import Tolerance
 from vpr_jax.matching import top_k_matches
@@ -59,6 +59,39 @@ def pair_data(route: Route, split: Split, db: str, query: str, database: str,
         val_query_ids=val_ids,
         val_truth=Tolerance.of(val_ids, val_ids, tolerance),
     )
+
+
+def benchmark_pair(bench: Benchmark, route: Route | None, split: Split | None,
+                   cfg: SweepConfig) -> PairData:
+    """A benchmark's one pair. Its queries are scored against its database with its own
+    ground truth. The encoders fit on the training places of ``route`` (both of
+    ``data.seasons``, aligned; they validate on its validation places), or, without one, on
+    the database images, validating on the last ``split.val_fraction`` of the queries
+    (held out from the test: nothing is chosen on test queries)."""
+    db, query = bench.pair
+    if route is not None:
+        a, b = route.seasons
+        val_ids = route.frame_ids[split.val]
+        return PairData(
+            db_season=db, query_season=query,
+            train=np.concatenate([route.images[a][split.train], route.images[b][split.train]]),
+            db=bench.db, query=bench.query, db_ids=bench.db_ids, query_ids=bench.query_ids,
+            truth=bench.truth,
+            val_db=route.images[a][split.val], val_query=route.images[b][split.val],
+            val_db_ids=val_ids, val_query_ids=val_ids,
+            val_truth=Tolerance.of(val_ids, val_ids, cfg.tolerance),
+        )  # fmt: skip
+    n_query = len(bench.query)
+    n_val = min(max(1, round(cfg.split.val_fraction * n_query)), n_query - 1)
+    test, val = np.arange(n_query - n_val), np.arange(n_query - n_val, n_query)
+    return PairData(
+        db_season=db, query_season=query, train=bench.db,
+        db=bench.db, query=bench.query[test], db_ids=bench.db_ids,
+        query_ids=bench.query_ids[test], truth=bench.truth.take(test),
+        val_db=bench.db, val_query=bench.query[val], val_db_ids=bench.db_ids,
+        val_query_ids=bench.query_ids[val], val_truth=bench.truth.take(val),
+        aligned_training=False,
+    )  # fmt: skip
 
 
 def _part(desc: Descriptors, pair: PairData, part: str):
@@ -156,7 +189,9 @@ def save_cell(logdir: Path, cfg: SweepConfig, pair: PairData, desc: Descriptors,
         season_pair=pair.name, db_season=pair.db_season, query_season=pair.query_season,
         method=desc.method, objective=desc.objective, removed_pcs=k, ds=ds,
         n_train=len(pair.train),
-        n_test=len(pair.query), tolerance=cfg.tolerance, **ev.scalars(),
+        n_test=len(pair.query),
+        tolerance=pair.truth.tolerance if isinstance(pair.truth, Tolerance) else -1,
+        ground_truth=pair.truth.describe(), **ev.scalars(),
         recall_at_1_ci_low=ci.recall_at_1.low, recall_at_1_ci_high=ci.recall_at_1.high,
         auc_pr_ci_low=ci.auc_pr.low, auc_pr_ci_high=ci.auc_pr.high,
         val_recall_at_1=val.recall_at_1, val_auc_pr=val.auc_pr, selected=0,

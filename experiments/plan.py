@@ -11,12 +11,13 @@ import itertools
 from pathlib import Path
 from typing import NamedTuple
 
-from vpr_jax.config import SWEEPS_REMOVED_PCS, SequenceConfig, SweepConfig
-from vpr_jax.data import SEASON_ORDER, Route, load_route
+from vpr_jax.config import BENCHMARK_SOURCES, SWEEPS_REMOVED_PCS, SequenceConfig, SweepConfig
+from vpr_jax.data import SEASON_ORDER, Benchmark, Route, load_data, load_train_route
+from vpr_jax.data.benchmark import BENCHMARK_PAIRS
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
 from vpr_jax.logdir import prepare_logdir
-from vpr_jax.preprocess import preprocess_route
+from vpr_jax.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.progress import Log
 
 
@@ -26,8 +27,32 @@ class Plan(NamedTuple):
     cfg: SweepConfig
     logdir: Path  # absolute
     pairs: list[tuple[str, str]]  # (database season, query season)
-    route: Route  # loaded, screened and preprocessed
-    split: Split
+    route: Route | None  # loaded, screened and preprocessed (a benchmark's training route)
+    split: Split | None  # of the route
+    benchmark: Benchmark | None = None  # data.source is a benchmark: its one pair
+
+    def describe(self) -> str:
+        """What the sweep runs on, for the run log's first line."""
+        if self.benchmark is None:
+            return (f"{len(self.route)} frames per season, {len(self.split.train)} training, "
+                    f"{len(self.split.val)} validation and {len(self.split.test)} test places "
+                    "per season")
+        b = self.benchmark
+        train = (f"training on {len(self.split.train)} places of each of "
+                 f"{', '.join(self.route.seasons)}" if self.route is not None else
+                 f"training on the {len(b.db):,} database images")
+        return (f"{b.source}: {len(b.db):,} database images, {len(b.query):,} queries, {train}, "
+                f"ground truth {b.truth.describe()}")
+
+
+def resolve_benchmark_pair(spec: str, source: str) -> list[tuple[str, str]]:
+    """A benchmark has one pair, its database and queries: ``all`` or that pair's name."""
+    db, query = BENCHMARK_PAIRS[source]
+    if spec.strip() not in ("all", f"{db}-{query}"):
+        raise UserError(f"season_pairs={spec} does not apply to data.source={source}: its one "
+                        f"pair is {db}-{query} (database {db}, queries {query}); use "
+                        "season_pairs=all")  # fmt: skip
+    return [(db, query)]
 
 
 def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
@@ -86,17 +111,40 @@ def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int, log: 
 
 
 def make_plan(cfg: SweepConfig, log: Log) -> Plan:
-    """Check pairs and logdir, load (and screen, and preprocess) the route, split it, and
-    check the removed-PC counts against the training set."""
+    """Check pairs and logdir, load (and screen, and preprocess) the route or benchmark, split
+    the route, and check the removed-PC counts against the training set."""
     logdir = Path(cfg.logdir).expanduser().resolve()
-    pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
+    benchmark = cfg.data.source in BENCHMARK_SOURCES
+    if benchmark:
+        pairs = resolve_benchmark_pair(cfg.season_pairs, cfg.data.source)
+    else:
+        pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
     prepare_logdir(logdir, cfg)
     if not cfg.sequence.enabled and cfg.sequence.ds != SequenceConfig().ds:
         log(f"note: sequence.ds={list(cfg.sequence.ds)} is ignored while sequence.enabled="
             "false: single images only (add sequence.enabled=true for the ds axis)")
-    route = load_route(cfg.data, cfg.seed, log)
-    route = preprocess_route(route, cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded,
-                             log)  # fmt: skip
-    split = make_split(route.frame_ids, cfg.split)
-    check_components(cfg, 2 * len(split.train), int(route.images[pairs[0][0]][0].size), log)
-    return Plan(cfg, logdir, pairs, route, split)
+    prep = (cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded, log)
+    data = load_data(cfg.data, cfg.seed, log)
+    if not benchmark:
+        route = preprocess_route(data, *prep)
+        split = make_split(route.frame_ids, cfg.split)
+        check_components(cfg, 2 * len(split.train), int(route.images[pairs[0][0]][0].size), log)
+        return Plan(cfg, logdir, pairs, route, split)
+    bench = preprocess_benchmark(data, *prep)
+    if len(bench.query) < 2:
+        raise UserError(f"data.source={cfg.data.source} has {len(bench.query)} query image(s): "
+                        "validation and test need at least two")  # fmt: skip
+    route = load_train_route(cfg.data, cfg.seed, log)
+    split = None
+    if route is None:
+        log(f"note: data.source={cfg.data.source} has no aligned training places: the "
+            f"encoders fit on the database images, the last split.val_fraction="
+            f"{cfg.split.val_fraction} of the queries validate; methods and objectives that "
+            "learn from the alignment (diff_pca, lda, cross_season) need data.train_source")
+        n_train = len(bench.db)
+    else:
+        route = preprocess_route(route, *prep)
+        split = make_split(route.frame_ids, cfg.split)
+        n_train = 2 * len(split.train)
+    check_components(cfg, n_train, int(bench.db[0].size), log)
+    return Plan(cfg, logdir, pairs, route, split, bench)

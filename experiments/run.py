@@ -9,6 +9,7 @@ can without JAX first and imports this module only then.
 from __future__ import annotations
 
 import functools
+import os
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -21,6 +22,7 @@ from omegaconf import OmegaConf
 
 from experiments.cells import (
     INCOMPLETE,
+    benchmark_pair,
     block_length,
     log_cell,
     match,
@@ -42,6 +44,7 @@ from vpr_jax.methods import (
     MethodContext,
     PairData,
     fit_pair_pca,
+    model_name,
 )
 from vpr_jax.metrics import SCALAR_NAMES
 from vpr_jax.plots import correct_matches_figure, pr_curves_figure, recall_vs_ds_figure
@@ -58,7 +61,7 @@ from vpr_jax.results import (
     selected_rows,
 )
 from vpr_jax.sharding import make_mesh, mesh_size
-from vpr_jax.tb import TrainingRun, write_experiment_config
+from vpr_jax.tb import SummaryCell, TrainingRun, write_experiment_config, write_pair_summary
 
 
 def objectives_of(method: str, cfg: SweepConfig) -> tuple[str, ...]:
@@ -120,10 +123,43 @@ def write_summaries(logdir: Path, cfg: SweepConfig) -> None:
         with np.load(logdir / row.run / "curve.npz") as z:
             return z["precision"], z["recall"]
 
+    write_tb_summaries(logdir, rows, cfg)
     pr_curves_figure(rows, load_curve, figures / "pr_curves.png")
     correct_matches_figure(rows, figures / "correct_matches.png")
     if len({r.ds for r in rows}) > 1:
         recall_vs_ds_figure(rows, figures / "recall_vs_ds.png")
+
+
+SUMMARY = "summary"  # logdir/summary/<pair>: each pair's selected cells in one run
+
+
+def write_tb_summaries(logdir: Path, rows: list[ResultRow], cfg: SweepConfig) -> None:
+    """Per season pair, one TensorBoard run holding every method's selected cell
+    (``vpr_jax.tb.write_pair_summary``), rewritten whole (aside, then moved into place) from
+    the table and the cells' curve.npz. ``tensorboard --logdir LOGDIR/summary`` opens on
+    them; rows whose runs predate the per-query record are left out."""
+    by_pair: dict[str, list[SummaryCell]] = {}
+    for row in selected_rows(rows):
+        with np.load(logdir / row.run / "curve.npz") as z:
+            if "best_correct" not in z:
+                continue
+            per_query = z["best_scores"], z["best_correct"], z["has_match"]
+        label = model_name(row.method, row.objective)
+        label += f"_ds{row.ds:02d}" if row.ds != 1 else ""
+        setting = f"k={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else ""
+        scalars = {name: getattr(row, name) for name in SCALAR_NAMES}
+        by_pair.setdefault(row.season_pair, []).append(
+            SummaryCell(label, setting, scalars, *per_query))
+    for pair, cells in by_pair.items():
+        staging = logdir / INCOMPLETE / SUMMARY / pair
+        shutil.rmtree(staging, ignore_errors=True)
+        staging.mkdir(parents=True)
+        write_pair_summary(staging, cells, pr_convention=cfg.pr_convention,
+                           n_thresholds=cfg.tb.pr_thresholds)  # fmt: skip
+        final = logdir / SUMMARY / pair
+        shutil.rmtree(final, ignore_errors=True)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(staging, final)
 
 
 def differences_to_pca(rows: list[ResultRow], logdir: Path, cfg: SweepConfig
@@ -199,10 +235,8 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
     atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(to_dict(cfg)))
     log.open(out / "sweep.log")
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
-    log(f"sweep: {len(plan.route)} frames per season, {len(plan.split.train)} training, "
-        f"{len(plan.split.val)} validation and {len(plan.split.test)} test places per "
-        f"season, pairs "
-        f"{[f'{a}-{b}' for a, b in plan.pairs]}, methods {list(cfg.methods)}, logdir {logdir}")
+    log(f"sweep: {plan.describe()}, pairs {[f'{a}-{b}' for a, b in plan.pairs]}, "
+        f"methods {list(cfg.methods)}, logdir {logdir}")
     cells, todo = _cells_to_do(plan, log)
     write_experiment_config(
         out,
@@ -223,8 +257,7 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                 if not left:
                     continue
                 if data is None:  # built on first use
-                    data = pair_data(plan.route, plan.split, db, query, cfg.split.database,
-                                     cfg.tolerance)
+                    data = _pair(plan, db, query)
                 if method in USES_PCA_FIT and ctx.pca_fit is None:  # one fit per pair
                     ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
                 todo_ctx = ctx._replace(
@@ -238,9 +271,18 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                         log_cell(log, f"[{finished}/{len(cells)}]", row, warning)
     write_summaries(out, cfg)
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)  # empty once every cell moved out
-    log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; "
-        f"view with: tensorboard --logdir {logdir}")
+    log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; compare the methods "
+        f"with: tensorboard --logdir {logdir / SUMMARY} (every cell: tensorboard --logdir "
+        f"{logdir})")
     return logdir
+
+
+def _pair(plan: Plan, db: str, query: str) -> PairData:
+    """The images and ground truth of one pair: of the route, or the benchmark's."""
+    cfg = plan.cfg
+    if plan.benchmark is not None:
+        return benchmark_pair(plan.benchmark, plan.route, plan.split, cfg)
+    return pair_data(plan.route, plan.split, db, query, cfg.split.database, cfg.tolerance)
 
 
 def _save_descriptors(out: Path, cfg: SweepConfig, data: PairData, desc: Descriptors,

@@ -91,3 +91,6 @@ def test_match_sets_sorts_rows_drops_repeats_and_takes_queries():
     with pytest.raises(ValueError, match="database positions"):
         sets.correct(np.array([[9], [0], [0]]))
     assert isinstance(sets, MatchSets)
+    nothing = match_sets([[], []], n_db=3)  # no query has a correct match
+    assert not nothing.correct(np.array([[0, 1], [2, 0]])).any()
+    assert list(nothing.a_match()) == [-1, -1]

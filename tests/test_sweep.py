@@ -227,3 +227,38 @@ def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path)
     best = route.frame_ids[np.argmax(numpy_cosine(query, db), axis=1)]
     correct = np.abs(best - route.frame_ids[split.test]) <= row.tolerance
     assert row.recall_at_1 == pytest.approx(correct.mean(), abs=1 / 120 + 1e-9)
+
+
+def test_each_pair_has_one_summary_run_of_its_selected_cells(small_sweep):
+    """TensorBoard opens on the comparison: logdir/summary holds one run per pair (fewer than
+    the 40 runs TensorBoard ticks by default), whose tags are every method's selected cell."""
+    from tensorboard.backend.event_processing.plugin_event_multiplexer import EventMultiplexer
+
+    from vpr_jax.methods import model_name
+
+    logdir, _ = small_sweep
+    rows = read_results(logdir / "results.csv")
+    pairs = sorted({r.season_pair for r in rows})
+    multiplexer = EventMultiplexer()
+    multiplexer.AddRunsFromDirectory(str(logdir / "summary"))
+    multiplexer.Reload()
+    assert sorted(multiplexer.Runs()) == pairs
+    for pair in pairs:
+        chosen = [r for r in rows if r.season_pair == pair and r.selected]
+        ea = read_run(logdir / "summary" / pair)
+        labels = [model_name(r.method, r.objective) for r in chosen]
+        assert sorted(t for t in ea.Tags()["tensors"] if t.startswith("pr_curve/")) == sorted(
+            f"pr_curve/{label}" for label in labels)
+        compared = [e.value for e in ea.Scalars("compare/recall_at_1")]
+        assert [e.step for e in ea.Scalars("compare/recall_at_1")] == list(range(len(chosen)))
+        for step, (row, label) in enumerate(zip(chosen, labels, strict=True)):
+            (value,) = ea.Scalars(f"recall_at_1/{label}")
+            assert value.value == pytest.approx(row.recall_at_1, abs=1e-6)
+            assert compared[step] == pytest.approx(row.recall_at_1, abs=1e-6)
+            (ep,) = ea.Scalars(f"extended_precision/{label}")
+            assert ep.value == pytest.approx(row.extended_precision, abs=1e-6)
+            # the same PR curve as the cell's own run
+            (mine,) = ea.Tensors(f"pr_curve/{label}")
+            (cells,) = read_run(logdir / row.run).Tensors("pr_curve")
+            np.testing.assert_array_equal(tensor_util.make_ndarray(mine.tensor_proto),
+                                          tensor_util.make_ndarray(cells.tensor_proto))

@@ -9,7 +9,7 @@ import pytest
 
 from tests.conftest import run_cli
 from tests.test_oversized_input import FOLDERS, _folders, _refused
-from vpr_jax.data import nordland
+from vpr_jax.data import images
 from vpr_jax.errors import UserError
 
 
@@ -51,9 +51,9 @@ def test_a_frame_deleted_after_listing_is_one_line(tmp_path):
     paths = sorted((root / "summer").iterdir())  # the listing
     paths[1].unlink()  # gone before it is read
     with pytest.raises(UserError) as err:
-        nordland._read_images(paths, "summer", resize=True)
+        images.read_images(paths, "summer", resize=True)
     message = str(err.value)
     assert str(paths[1]) in message and "No such file" in message, message
     assert "\n" not in message
-    images, _ = nordland._read_images([paths[0], paths[2]], "summer", resize=True)
-    assert images.shape == (2, 32, 64) and np.isfinite(images).all()
+    frames, _ = images.read_images([paths[0], paths[2]], "summer", resize=True)
+    assert frames.shape == (2, 32, 64) and np.isfinite(frames).all()

@@ -20,7 +20,12 @@ from vpr_jax.metrics import PR_CONVENTIONS
 from vpr_jax.shapes import IMAGE_SHAPE, MAX_PIXELS
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
-SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")
+ROUTE_SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")  # aligned
+# Benchmarks whose database and queries are not frame-aligned (ground truth as sets).
+BENCHMARK_SOURCES = ("vpr_bench", "positions", "nordland_star")
+SOURCES = (*ROUTE_SOURCES, *BENCHMARK_SOURCES)
+# What learns from aligned training places: unaligned benchmarks need data.train_source.
+NEEDS_ALIGNED = ("diff_pca", "lda")
 METHODS = ("raw", "pca", "diff_pca", "ica", "lda", "fae", "cae")
 # Methods whose cells are indexed by a removed-PC count; the others run once with k = 0.
 SWEEPS_REMOVED_PCS = frozenset({"pca", "diff_pca", "ica"})
@@ -55,8 +60,17 @@ def _check_objectives(obj: Any, group: str) -> None:
 class DataConfig:
     """Where images come from. Every source yields frame-aligned (N, 32, 64) seasons."""
 
-    source: str = "synthetic"  # synthetic | nordland_images | nordland_videos | folders
+    # aligned routes: synthetic | nordland_images | nordland_videos | folders;
+    # benchmarks: vpr_bench | positions | nordland_star (docs/guide.md, "Any benchmark")
+    source: str = "synthetic"
     root: str | None = None  # data folder (not used by synthetic)
+    radius_m: float = 25.0  # positions: a database image within this distance is correct
+    # Benchmarks fit their encoders on their database images, or on the training places of
+    # this aligned route (a route source: synthetic, nordland_images, ...) read from
+    # train_root with data.seasons (two seasons: the pair to learn from).
+    train_source: str | None = None
+    train_root: str | None = None
+    frame_range: list[int] | None = None  # [first, last] frame ids kept (Nordland sources)
     seasons: list[str] = field(default_factory=lambda: ["spring", "summer", "fall"])
     n_frames: int = 3600  # synthetic only: route length in frames per season
     frame_step: int = 1  # keep every step-th frame (10 on the full route gives ~3,577)
@@ -83,6 +97,29 @@ class DataConfig:
                "a pixel standard deviation in [0, 0.5): use e.g. 0.01")
         _check(self.source == "synthetic" or self.root is not None,
                f"data.source={self.source} needs data.root=PATH (the folder with the seasons)")
+        _check(self.radius_m > 0, f"data.radius_m={self.radius_m} must be positive: a "
+               "database image within that many metres of a query is correct, e.g. 25")
+        if self.frame_range is not None:
+            _as_tuple(self, "frame_range")
+            _check(len(self.frame_range) == 2 and self.frame_range[0] <= self.frame_range[1],
+                   f"data.frame_range={list(self.frame_range)} is not [first, last]: e.g. "
+                   "data.frame_range=[202,35582]")
+        if self.train_source is not None:
+            _check(self.source in BENCHMARK_SOURCES, f"data.train_source applies to "
+                   f"benchmarks ({', '.join(BENCHMARK_SOURCES)}): data.source={self.source} "
+                   "trains on its own route; drop data.train_source")
+            _check(self.train_source in ROUTE_SOURCES, f"data.train_source={self.train_source} "
+                   f"is not an aligned route: use one of {', '.join(ROUTE_SOURCES)}")
+            _check(self.train_source == "synthetic" or self.train_root is not None,
+                   f"data.train_source={self.train_source} needs data.train_root=PATH")
+            _check(len(self.seasons) == 2, f"data.train_source reads the two seasons to learn "
+                   f"from, data.seasons={list(self.seasons)}: name two, e.g. "
+                   "data.seasons=[summer,winter]")
+
+    @property
+    def aligned_training(self) -> bool:
+        """Whether the encoders fit on aligned places of two seasons."""
+        return self.source in ROUTE_SOURCES or self.train_source is not None
         _check(self.source != "synthetic" or self.frame_list is None,
                "data.frame_list applies to Nordland sources only: drop it for "
                "data.source=synthetic")
@@ -480,11 +517,40 @@ def parse_config(argv: list[str]) -> SweepConfig:
             known = sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
             raise UserError(f"preset={preset} has no file {preset_file}: use one of "
                             f"{', '.join(known)}")
-        merged = OmegaConf.merge(OmegaConf.structured(SweepConfig),
-                                 OmegaConf.load(preset_file), cli)
-        return OmegaConf.to_object(merged)
+        preset_cfg = OmegaConf.load(preset_file)
+        merged = OmegaConf.merge(OmegaConf.structured(SweepConfig), preset_cfg, cli)
+        cfg = OmegaConf.to_object(merged)
     except OmegaConfBaseException as err:
         raise UserError(f"bad config: {_first_line(err)}: see docs/config.md") from None
+    if cfg.data.aligned_training:
+        return cfg
+    asked = {key for key in ("methods", "fae.objective", "cae.objective")
+             if OmegaConf.select(cli, key) is not None
+             or OmegaConf.select(preset_cfg, key) is not None}  # fmt: skip
+    return without_aligned_learning(cfg, asked)
+
+
+def without_aligned_learning(cfg: SweepConfig, asked: set[str]) -> SweepConfig:
+    """A benchmark without aligned training places (no ``data.train_source``): the methods
+    and objectives that learn from the alignment are left out of the defaults; asked for by
+    name, they are one line."""
+    source = f"data.source={cfg.data.source}"
+    fix = ("set data.train_source and data.train_root to an aligned route to learn from (e.g. "
+           "Nordland's training places), or leave them out")
+    wanted = [m for m in cfg.methods if m in NEEDS_ALIGNED]
+    _check(not (wanted and "methods" in asked), f"methods {wanted} learn from aligned "
+           f"training places, which {source} does not have: {fix}")
+    changes = {"methods": tuple(m for m in cfg.methods if m not in NEEDS_ALIGNED)}
+    for model in ("fae", "cae"):
+        objectives = getattr(cfg, model).objective
+        if "cross_season" in objectives and model in changes["methods"]:
+            _check(f"{model}.objective" not in asked, f"{model}.objective=cross_season needs "
+                   f"aligned training places, which {source} does not have: {fix}")
+        kept = tuple(o for o in objectives if o != "cross_season") or ("reconstruct",)
+        changes[model] = dataclasses.replace(getattr(cfg, model), objective=kept)
+    _check(bool(changes["methods"]), f"methods={list(cfg.methods)} all learn from aligned "
+           f"training places, which {source} does not have: {fix}")
+    return dataclasses.replace(cfg, **changes)
 
 
 def to_dict(cfg: SweepConfig) -> dict:

@@ -157,6 +157,8 @@ class MatchSets(NamedTuple):
         stride = np.int64(max(self.n_db, 1))
         keys = np.repeat(np.arange(self.n_queries), np.diff(self.indptr)) * stride + self.indices
         wanted = np.arange(self.n_queries)[:, None] * stride + idx
+        if keys.size == 0:  # no query has a correct match
+            return np.zeros(idx.shape, bool)
         at = np.searchsorted(keys, wanted)
         return (at < keys.size) & (keys[np.minimum(at, keys.size - 1)] == wanted)
 

@@ -64,8 +64,11 @@ class PairData(NamedTuple):
 
     @property
     def val(self) -> np.ndarray:
-        """The validation images, database first: aligned pairs when ``aligned_training``
-        (what the auto-encoders' early stopping scores)."""
+        """The images the auto-encoders' early stopping scores: the validation places of
+        both seasons, database first (aligned pairs), or, trained on a benchmark's database,
+        the held-out validation queries (the database is the training set)."""
+        if not self.aligned_training:
+            return self.val_query
         return np.concatenate([self.val_db, self.val_query])
 
     @property

@@ -6,6 +6,8 @@ query's top-K database matches, so a caller matching a 35,768-frame route never 
 convenience wrapper for a matrix that fits in memory.
 
 Ground truth
+    ``vpr_jax.ground_truth``: a tolerance on frame ids (aligned routes, below) or explicit
+    sets per query (any benchmark); :func:`evaluate_matches` takes either.
     Query with original frame id ``q`` matches database frame ``d`` when ``|q - d| <= tolerance``.
     ``has_match[i]`` says whether the database holds any true match for query ``i`` (found with
     ``searchsorted`` on a sorted copy of ``db_ids``: O((Nq + Ndb) log Ndb), never an
@@ -48,7 +50,7 @@ Single-best-match PR curve (VPR-Bench, CALC, VPR_Tutorial ``matching='single'``)
     thresholds evenly between the largest and smallest score, every distinct score is used, so
     the curve is exact (evaluate the tutorial's sampling with :func:`pr_counts`).
 
-Scalar metrics (the six in :meth:`Evaluation.scalars`)
+Scalar metrics (the seven in :meth:`Evaluation.scalars`)
     ``recall_at_1``: fraction of ALL queries whose best match is correct ("fraction of correct
     matches"; VPR-Bench's ``compute_accuracy``).
     ``precision_at_full_recall``: precision at the loosest threshold (every query accepted),
@@ -67,6 +69,7 @@ Scalar metrics (the six in :meth:`Evaluation.scalars`)
     match among their top K. Unlike ``recall_at_1`` above it ignores queries without a match;
     the two agree for K = 1 when every query has a match. With fewer than K database frames
     K is clipped to the database size (as VPR_Tutorial's ``demo.py`` does).
+    ``extended_precision``: VPR-Bench's EP (:func:`extended_precision`).
 
 Degenerate inputs (no query with a true match, all scores equal, a single query) return
 well-defined numbers without division warnings; NaN or infinite best scores, bad shapes, and

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vpr_jax.data.benchmark import Benchmark
 from vpr_jax.data.route import Route
 from vpr_jax.progress import Log
 
@@ -60,11 +61,28 @@ def preprocess_route(
     route: Route, preprocess: str, size: int, rounded: bool, log: Log = print
 ) -> Route:
     """The route every method sees: as loaded (``none``) or patch-normalised."""
-    if preprocess == "none":
+    if not _announce(preprocess, size, rounded, log):
         return route
+    return Route(route.frame_ids, {s: patch_normalize(im, size, rounded)
+                                   for s, im in route.images.items()})
+
+
+def preprocess_benchmark(
+    bench: Benchmark, preprocess: str, size: int, rounded: bool, log: Log = print
+) -> Benchmark:
+    """A benchmark's database and queries, preprocessed as ``preprocess_route`` does."""
+    if not _announce(preprocess, size, rounded, log):
+        return bench
+    return bench._replace(db=patch_normalize(bench.db, size, rounded),
+                          query=patch_normalize(bench.query, size, rounded))
+
+
+def _announce(preprocess: str, size: int, rounded: bool, log: Log) -> bool:
+    """Whether images change (``patchnorm``), logged; ``none`` leaves them as loaded."""
+    if preprocess == "none":
+        return False
     if preprocess != "patchnorm":
         raise ValueError(f"unknown preprocess {preprocess!r}")
     variant = "rounded to grey levels like openSeqSLAM" if rounded else "float z-scores"
     log(f"preprocess: patch normalisation, {size}x{size} patches, {variant}")
-    return Route(route.frame_ids, {s: patch_normalize(im, size, rounded)
-                                   for s, im in route.images.items()})
+    return True

@@ -23,7 +23,8 @@ ResultRow = NamedTuple("ResultRow", [
     ("ds", int),  # sequence length; 1 = single images
     ("n_train", int),  # images the encoder was fitted on, both seasons
     ("n_test", int),  # queries
-    ("tolerance", int),
+    ("tolerance", int),  # frames, for a tolerance ground truth; -1 for sets
+    ("ground_truth", str),  # what defines a correct match: "+-2 frames", "within 25 m", ...
     *((name, float) for name in SCALAR_NAMES),  # the seven metrics (vpr_jax.metrics)
     ("recall_at_1_ci_low", float),  # 95% block-bootstrap interval (vpr_jax.bootstrap)
     ("recall_at_1_ci_high", float),
@@ -51,6 +52,7 @@ ADDED_COLUMNS = {
                                                "val_recall_at_1", "val_auc_pr")},  # fmt: skip
     "selected": lambda row: "0",  # marked again whenever the table is written
     "extended_precision": lambda row: "nan",
+    "ground_truth": lambda row: f"+-{row['tolerance']} frames",
 }
 
 

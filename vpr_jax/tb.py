@@ -11,6 +11,7 @@ import threading
 import time
 import traceback
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from tensorboard.plugins.hparams import summary_v2 as hp
@@ -114,22 +115,70 @@ def write_cell_run(
     sweep's recall.
     """
     ev = evaluation
-    thresholds = np.linspace(0.0, 1.0, n_thresholds)
-    tp, fp, tn, fn = pr_counts((ev.best_scores + 1.0) / 2.0, ev.best_correct, ev.has_match,
-                               thresholds, pr_convention=ev.pr_convention)  # fmt: skip
-    precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
-    recall = tp / np.maximum(tp + fn, 1)
     tagged = {**{f"metrics/{k}": v for k, v in ev.scalars().items()}, **scalars}
     writer = SummaryWriter(str(run_dir))
     for tag, value in tagged.items():
         writer.add_scalar(tag, float(value), global_step=0)
-    writer.add_pr_curve_raw("pr_curve", tp, fp, tn, fn, precision, recall,
-                            global_step=0, num_thresholds=n_thresholds)
+    _add_pr_curve(writer, "pr_curve", ev.best_scores, ev.best_correct, ev.has_match,
+                  ev.pr_convention, n_thresholds)
     writer.add_image("matches/query_best_true", examples, global_step=0, dataformats="HW")
     if basis_images is not None and len(basis_images):
         grid = tile(normalise_each(basis_images), n_cols=min(4, len(basis_images)))
         writer.add_image(basis_tag, grid, global_step=0, dataformats="HW")
     writer.file_writer.add_summary(_to_tbx(hp.hparams_pb(hparams, trial_id=trial_id)))
+    _closed(writer)
+
+
+def _add_pr_curve(writer: SummaryWriter, tag: str, best_scores, best_correct, has_match,
+                  pr_convention: str, n_thresholds: int, step: int = 0) -> None:
+    """A single-best-match PR curve on thresholds linspace(0, 1) of (cosine + 1) / 2, its
+    counts in ``pr_convention`` (TensorBoard's recall is then the sweep's recall)."""
+    thresholds = np.linspace(0.0, 1.0, n_thresholds)
+    tp, fp, tn, fn = pr_counts((np.asarray(best_scores) + 1.0) / 2.0, best_correct, has_match,
+                               thresholds, pr_convention=pr_convention)  # fmt: skip
+    precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
+    recall = tp / np.maximum(tp + fn, 1)
+    writer.add_pr_curve_raw(tag, tp, fp, tn, fn, precision, recall, global_step=step,
+                            num_thresholds=n_thresholds)  # fmt: skip
+
+
+class SummaryCell(NamedTuple):
+    """One method's selected cell of a pair, for the pair's summary run."""
+
+    label: str  # the method as tags name it: pca, fae_cross_season, lda_ds10
+    setting: str  # what was selected, for the text table: "k=10", ""
+    scalars: dict[str, float]  # metric name -> value (the results.csv row's)
+    best_scores: np.ndarray
+    best_correct: np.ndarray
+    has_match: np.ndarray
+
+
+# The scalars a summary run also puts side by side, one step per method (method order).
+COMPARED = ("recall_at_1", "auc_pr", "extended_precision", "recall_at_100_precision")
+
+
+def write_pair_summary(run_dir: Path, cells: list[SummaryCell], *, pr_convention: str,
+                       n_thresholds: int) -> None:
+    """A season pair's summary run: each method's selected cell as tags of one run, so
+    TensorBoard shows the comparison (the seed's Figs 7-12) without ticking 70 runs.
+
+    - PR CURVES: ``pr_curve/<label>``, one chart per method (the pair's own curve in it);
+    - SCALARS: ``<metric>/<label>`` at step 0 for every metric, and ``compare/<metric>``
+      for the metrics in ``COMPARED`` with method i at step i, all methods on one chart;
+    - TEXT: ``methods``: which step is which method and setting.
+    """
+    writer = SummaryWriter(str(run_dir))
+    rows = ["| step | method | selected | recall@1 | AUC-PR |", "|---|---|---|---|---|"]
+    for step, cell in enumerate(cells):
+        _add_pr_curve(writer, f"pr_curve/{cell.label}", cell.best_scores, cell.best_correct,
+                      cell.has_match, pr_convention, n_thresholds)  # fmt: skip
+        for name, value in cell.scalars.items():
+            writer.add_scalar(f"{name}/{cell.label}", float(value), global_step=0)
+        for name in COMPARED:
+            writer.add_scalar(f"compare/{name}", float(cell.scalars[name]), global_step=step)
+        rows.append(f"| {step} | {cell.label} | {cell.setting} | "
+                    f"{cell.scalars['recall_at_1']:.3f} | {cell.scalars['auc_pr']:.3f} |")
+    writer.add_text("methods", "\n".join(rows), global_step=0)
     _closed(writer)
 
 

@@ -21,7 +21,6 @@ the problem and the fix.
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import json
 import math
@@ -38,7 +37,14 @@ import cv2
 import numpy as np
 
 from vpr_jax.data.frames import frame_id_from_name, parse_frame_list
-from vpr_jax.data.image_header import image_size
+from vpr_jax.data.images import (
+    IMAGE_EXTENSIONS,
+    check_pixels,
+    is_image_file,
+    note_colour,
+    read_images,
+    to_unit_float,
+)
 from vpr_jax.data.route import IMAGE_SHAPE, Route
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Log, interactive, track
@@ -47,7 +53,6 @@ from vpr_jax.shapes import MAX_PIXELS
 PathLike = str | os.PathLike
 
 SOURCES = ("nordland_images", "nordland_videos", "folders")
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
 VIDEO_EXTENSIONS = tuple(".mp4 .avi .mkv .mov .webm .m4v .mpg .mpeg .wmv .flv .ts".split())
 RELEASE_NAME = re.compile(r"^images-(\d+)\.png$", re.IGNORECASE)
 
@@ -109,6 +114,7 @@ def read_folders(root: PathLike, seasons: Sequence[str], **options) -> Route:
 def _read_image_folders(source: str, root: PathLike, seasons: Sequence[str], *,
                         match: Callable[[Path, str], int | None], empty_hint: str, resize: bool,
                         frame_list: PathLike | None = None, frame_step: int = 1,
+                        frame_range: Sequence[int] | None = None,
                         max_pixels: int = MAX_PIXELS, log: Log = print) -> Route:
     """Index every season folder ({frame id: path}, names ``match`` maps to ids), align the
     seasons, then read only the frames kept."""
@@ -121,14 +127,15 @@ def _read_image_folders(source: str, root: PathLike, seasons: Sequence[str], *,
         files[season] = _index_files(folder, season, match=partial(match, folder),
                                      empty_hint=empty_hint)  # fmt: skip
     ids = _align(
-        {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()}, frame_list, frame_step, log
+        {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()}, frame_list, frame_step,
+        log, frame_range,
     )
     images, colour = {}, {}
     for season, by_id in files.items():
         paths = [by_id[int(i)] for i in ids]
-        images[season], colour[season] = _read_images(paths, season, resize=resize,
+        images[season], colour[season] = read_images(paths, season, resize=resize,
                                                       max_pixels=max_pixels)
-    _note_colour(colour, log)
+    note_colour(colour, log)
     log(_summary(source, ids, seasons, root))
     return Route(ids, images)
 
@@ -140,6 +147,7 @@ def read_videos(
     cache_dir: PathLike | None,
     frame_list: PathLike | None = None,
     frame_step: int = 1,
+    frame_range: Sequence[int] | None = None,
     max_pixels: int = MAX_PIXELS,
     log: Log = print,
 ) -> Route:
@@ -167,12 +175,12 @@ def read_videos(
             ) from None
     raw = {season: _video_frames(videos[season], season, cache, log, max_pixels)
            for season in seasons}  # fmt: skip
-    ids = _align({s: r[1] for s, r in raw.items()}, frame_list, frame_step, log)
+    ids = _align({s: r[1] for s, r in raw.items()}, frame_list, frame_step, log, frame_range)
     images = {}
     for season in seasons:
         frames, frame_ids = raw[season]
         rows = np.searchsorted(frame_ids, ids)
-        images[season] = _to_unit_float(frames[rows])
+        images[season] = to_unit_float(frames[rows])
     log(_summary("nordland_videos", ids, seasons, root))
     return Route(ids, images)
 
@@ -259,7 +267,7 @@ def _index_files(
             if entry.name.startswith("."):
                 continue
             frame = match(entry.name)
-            if frame is None or not _is_image_file(entry):
+            if frame is None or not is_image_file(entry):
                 continue
             if frame in found:
                 first, second = sorted([found[frame].name, entry.name])
@@ -273,24 +281,6 @@ def _index_files(
     return dict(sorted(found.items()))
 
 
-def _is_image_file(entry: os.DirEntry) -> bool:
-    """Whether a directory entry named like a frame is a file to read; a symbolic link
-    that loops or points nowhere is refused (it is a frame the user meant to have)."""
-    try:
-        if entry.is_file():
-            return True
-        if entry.is_symlink():
-            os.stat(entry.path)
-    except OSError as err:
-        if entry.is_symlink():
-            what = "loops" if err.errno == errno.ELOOP else "points to a missing file"
-            raise UserError(f"image {entry.path} is a symbolic link that {what} "
-                            f"({os.readlink(entry.path)}): fix the link or remove it") from None
-        raise UserError(f"image {entry.path} cannot be read ({err.strerror}): check that it "
-                        "exists and that you may read it") from None
-    return False
-
-
 # --------------------------------------------------------------------------------------------
 # alignment of seasons, frame list, frame step
 
@@ -300,8 +290,10 @@ def _align(
     frame_list: PathLike | None,
     frame_step: int,
     log: Log,
+    frame_range: Sequence[int] | None = None,
 ) -> np.ndarray:
-    """The sorted frame ids to read: listed (if a list), common to all seasons, every step-th."""
+    """The sorted frame ids to read: listed (if a list), common to all seasons, within
+    ``frame_range`` (first and last id kept, if given), every step-th."""
     available = {s: np.unique(np.asarray(ids, dtype=np.int64)) for s, ids in available.items()}
     if frame_list is not None:
         wanted = parse_frame_list(frame_list)
@@ -330,6 +322,13 @@ def _align(
             f"seasons hold different frames: keeping the {common.size:,} common to all; "
             f"frames dropped per season: {dropped}"
         )
+    if frame_range is not None:
+        first, last = (int(v) for v in frame_range)
+        kept = common[(common >= first) & (common <= last)]
+        if kept.size == 0:
+            raise UserError(f"data.frame_range=[{first},{last}] keeps none of the frames "
+                            f"{common[0]}..{common[-1]}: choose a range inside them")
+        common = kept
     return common[::frame_step]
 
 
@@ -338,94 +337,6 @@ def _summary(source: str, ids: np.ndarray, seasons: Sequence[str], root: Path) -
         f"{source}: {ids.size:,} frames x {len(seasons)} seasons ({', '.join(seasons)}), "
         f"frames {ids[0]}..{ids[-1]}, from {root}"
     )
-
-
-# --------------------------------------------------------------------------------------------
-# images
-
-
-def _check_pixels(what: str, width: int, height: int, max_pixels: int) -> None:
-    if width * height > max_pixels:
-        raise UserError(f"{what} is {width:,} x {height:,} pixels, over data.max_pixels="
-                        f"{max_pixels:,}: shrink it (the suite reads every frame as 64x32) or "
-                        "raise data.max_pixels if this is meant")  # fmt: skip
-
-
-def _read_images(paths: list[Path], season: str, *, resize: bool,
-                 max_pixels: int = MAX_PIXELS) -> tuple[np.ndarray, int]:
-    """(N, 32, 64) float32 in [0, 1] and how many of the files were colour. Each file's
-    size is read from its header first (``image_header``): an image over ``max_pixels``
-    is refused before it is decoded."""
-    out = np.empty((len(paths), _H, _W), dtype=np.float32)
-    colour = 0
-    for i, path in enumerate(track(paths, f"reading {season}", total=len(paths))):
-        try:
-            size = image_size(path)
-        except OSError as err:
-            raise UserError(f"image {path} cannot be read ({err.strerror}): check that it "
-                            "exists and that you may read it") from None  # fmt: skip
-        if size is not None:
-            _check_pixels(f"image {path}", *size, max_pixels)
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise UserError(_unreadable(path))
-        h, w = img.shape[:2]
-        if not resize and (h, w) != IMAGE_SHAPE:
-            raise UserError(
-                f"image {path} is {w}x{h}, the 64x32 release reader needs exactly 64 wide x 32 "
-                f"high: set data.source=folders to resize images of any size"
-            )
-        gray, was_colour = _gray(img, path)
-        colour += was_colour
-        gray = _to_unit_float(gray)
-        if (h, w) != IMAGE_SHAPE:
-            gray = cv2.resize(gray, _SIZE_WH, interpolation=cv2.INTER_AREA)
-        out[i] = gray
-    if resize:
-        np.clip(out, 0.0, 1.0, out=out)
-    return out, colour
-
-
-def _unreadable(path: Path) -> str:
-    try:
-        size = path.stat().st_size
-    except OSError:
-        size = None
-    if size == 0:
-        return f"image {path} is empty (0 bytes): re-copy or re-extract it, or delete it"
-    return (
-        f"image {path} cannot be read (corrupt, truncated, not an image or not readable): "
-        f"re-copy or re-extract it, or delete it"
-    )
-
-
-def _gray(img: np.ndarray, path: Path) -> tuple[np.ndarray, bool]:
-    """Single-channel image and whether the input was colour (BGR / BGRA)."""
-    if img.ndim == 2:
-        return img, False
-    channels = img.shape[2]
-    if channels == 1:
-        return img[..., 0], False
-    if channels == 3:
-        return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), True
-    if channels == 4:
-        return cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY), True
-    raise UserError(f"image {path} has {channels} channels: save it as grayscale or RGB")
-
-
-def _to_unit_float(img: np.ndarray) -> np.ndarray:
-    """uint8 / uint16 / float image -> float32 in [0, 1]."""
-    if img.dtype == np.uint8:
-        return img.astype(np.float32) / np.float32(255)
-    if img.dtype == np.uint16:
-        return img.astype(np.float32) / np.float32(65535)
-    return np.clip(img.astype(np.float32), 0.0, 1.0)
-
-
-def _note_colour(colour: dict[str, int], log: Log) -> None:
-    if any(colour.values()):
-        where = ", ".join(f"{s} {n:,}" for s, n in colour.items() if n)
-        log(f"converted colour images to grayscale ({where})")
 
 
 # --------------------------------------------------------------------------------------------
@@ -552,7 +463,7 @@ def _decode_video(video: Path, season: str, log: Log, max_pixels: int = MAX_PIXE
             )
         width, height = cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)
         if math.isfinite(width) and math.isfinite(height):
-            _check_pixels(f"a frame of video {video}", int(width), int(height), max_pixels)
+            check_pixels(f"a frame of video {video}", int(width), int(height), max_pixels)
         fps = cap.get(cv2.CAP_PROP_FPS)
         fps = fps if math.isfinite(fps) and fps > 0 else 0.0
         count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
@@ -627,5 +538,5 @@ def _small_gray(img: np.ndarray) -> np.ndarray:
     elif img.ndim == 3:
         img = img[..., 0]
     if img.dtype != np.uint8:
-        img = np.clip(np.rint(_to_unit_float(img) * 255), 0, 255).astype(np.uint8)
+        img = np.clip(np.rint(to_unit_float(img) * 255), 0, 255).astype(np.uint8)
     return cv2.resize(img, _SIZE_WH, interpolation=cv2.INTER_AREA)

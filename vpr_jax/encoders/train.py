@@ -222,6 +222,24 @@ def _known_spec(data) -> dict | None:
         return None  # not a model this version knows: it differs from any spec
 
 
+def _as_of_today(saved, current):
+    """A saved identity read as today's config would write it: keys whose default changed
+    what the suite computes take the value the old runs used (``logdir.CHANGED_DEFAULTS``);
+    other keys added since take today's value (their defaults reproduce the old runs), as
+    a resumed logdir's config does."""
+    from vpr_jax.logdir import with_old_defaults  # the one list of changed defaults
+
+    if not isinstance(saved, dict) or not isinstance(current, dict):
+        return saved
+
+    def fill(old, new):
+        if not isinstance(old, dict) or not isinstance(new, dict):
+            return old
+        return {**new, **{k: fill(v, new.get(k)) for k, v in old.items()}}
+
+    return fill(with_old_defaults(dict(saved)), current)
+
+
 def init_or_restore(
     fresh: TrainState, checkpoint_dir: Path | None, meta: dict, log: TrainingLog | None,
     name: str,
@@ -234,6 +252,7 @@ def init_or_restore(
     saved = checkpoints.read_meta(checkpoint_dir)
     # A spec written before a field existed means that field's default (spec_from_json).
     saved = {**_OLD_META, **saved, "spec": _known_spec(saved.get("spec"))}
+    saved["identity"] = _as_of_today(saved.get("identity"), meta.get("identity"))
     if any(saved.get(k) != v for k, v in meta.items()):
         raise UserError(f"{checkpoint_dir} holds a model trained on other data or settings: "
                         "delete that folder, or set train.checkpoint_dir=PATH to keep both")
