@@ -144,12 +144,14 @@ def test_the_config_names_what_the_library_registers():
     contrasts and data sources itself; they must be the library's."""
     from vpr_jax import config, methods
     from vpr_jax.data import nordland
+    from vpr_jax.data.benchmark import BENCHMARK_PAIRS
     from vpr_jax.encoders import ica, train
 
     assert config.METHODS == tuple(methods.METHODS)
     assert config.OPTIMIZERS == tuple(train.OPTIMIZERS)
     assert config.ICA_FUNS == ica.FUNS
-    assert config.SOURCES == ("synthetic", *nordland.SOURCES)
+    assert config.ROUTE_SOURCES == ("synthetic", *nordland.SOURCES)
+    assert config.BENCHMARK_SOURCES == tuple(BENCHMARK_PAIRS)
 
 
 def test_the_config_and_the_logdir_checks_load_without_jax():

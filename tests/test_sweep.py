@@ -252,10 +252,10 @@ def test_each_pair_has_one_summary_run_of_its_selected_cells(small_sweep):
         compared = [e.value for e in ea.Scalars("compare/recall_at_1")]
         assert [e.step for e in ea.Scalars("compare/recall_at_1")] == list(range(len(chosen)))
         for step, (row, label) in enumerate(zip(chosen, labels, strict=True)):
-            (value,) = ea.Scalars(f"recall_at_1/{label}")
+            (value,) = ea.Scalars(f"metrics/recall_at_1/{label}")
             assert value.value == pytest.approx(row.recall_at_1, abs=1e-6)
             assert compared[step] == pytest.approx(row.recall_at_1, abs=1e-6)
-            (ep,) = ea.Scalars(f"extended_precision/{label}")
+            (ep,) = ea.Scalars(f"metrics/extended_precision/{label}")
             assert ep.value == pytest.approx(row.extended_precision, abs=1e-6)
             # the same PR curve as the cell's own run
             (mine,) = ea.Tensors(f"pr_curve/{label}")

@@ -163,8 +163,9 @@ def write_pair_summary(run_dir: Path, cells: list[SummaryCell], *, pr_convention
     TensorBoard shows the comparison (the seed's Figs 7-12) without ticking 70 runs.
 
     - PR CURVES: ``pr_curve/<label>``, one chart per method (the pair's own curve in it);
-    - SCALARS: ``<metric>/<label>`` at step 0 for every metric, and ``compare/<metric>``
-      for the metrics in ``COMPARED`` with method i at step i, all methods on one chart;
+    - SCALARS: ``compare/<metric>`` for the metrics in ``COMPARED`` with method i at step i,
+      all methods on one chart (first: TensorBoard orders groups by name), and
+      ``metrics/<metric>/<label>`` at step 0 for every metric;
     - TEXT: ``methods``: which step is which method and setting.
     """
     writer = SummaryWriter(str(run_dir))
@@ -173,7 +174,7 @@ def write_pair_summary(run_dir: Path, cells: list[SummaryCell], *, pr_convention
         _add_pr_curve(writer, f"pr_curve/{cell.label}", cell.best_scores, cell.best_correct,
                       cell.has_match, pr_convention, n_thresholds)  # fmt: skip
         for name, value in cell.scalars.items():
-            writer.add_scalar(f"{name}/{cell.label}", float(value), global_step=0)
+            writer.add_scalar(f"metrics/{name}/{cell.label}", float(value), global_step=0)
         for name in COMPARED:
             writer.add_scalar(f"compare/{name}", float(cell.scalars[name]), global_step=step)
         rows.append(f"| {step} | {cell.label} | {cell.setting} | "

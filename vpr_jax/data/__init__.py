@@ -69,8 +69,10 @@ def load_train_route(cfg: DataConfig, seed: int, log: Log = print) -> Route | No
     if cfg.train_source is None:
         return None
     log(f"training route: data.train_source={cfg.train_source}, seasons {list(cfg.seasons)}")
+    # The benchmark's frame selection is not the route's: the route's split picks its places.
     route_cfg = dataclasses.replace(cfg, source=cfg.train_source, root=cfg.train_root,
-                                    train_source=None, train_root=None)  # fmt: skip
+                                    train_source=None, train_root=None, frame_list=None,
+                                    frame_range=None)  # fmt: skip
     return load_route(route_cfg, seed, log)
 
 
