@@ -284,3 +284,25 @@ def test_bad_positions_layouts_are_one_line(route, tmp_path, case):
                    f"logdir={tmp_path / 'runs'}")  # fmt: skip
     _refused(proc, *words)
     assert not (tmp_path / "runs").exists()
+
+
+def test_sequences_of_a_benchmark_follow_its_file_order(route, tmp_path):
+    """Files named in route order (zero-padded), one query per place: sequence matching of
+    4 frames finds more places than single images, scored against the file's sets."""
+    root = tmp_path / "bench"
+    for side, season in (("ref", "summer"), ("query", "fall")):
+        (root / side).mkdir(parents=True)
+        for i in range(N_PLACES):
+            cv2.imwrite(str(root / side / f"{i:04d}.png"), _u8(route.images[season][i]))
+    table = np.empty(N_PLACES, dtype=object)
+    for i in range(N_PLACES):
+        table[i] = (i, [j for j in (i - 1, i, i + 1) if 0 <= j < N_PLACES])
+    np.save(root / "ground_truth_new.npy", table, allow_pickle=True)
+    proc = run_cli("data.source=vpr_bench", f"data.root={root}", *RAW, "sequence.enabled=true",
+                   "sequence.ds=[1,4]", f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    rows = {r.ds: r for r in read_results(tmp_path / "runs" / "results.csv")}
+    assert set(rows) == {1, 4} and rows[4].n_test == rows[1].n_test == N_PLACES - 12
+    assert rows[4].recall_at_1 > rows[1].recall_at_1
+    table = (tmp_path / "runs" / "results.md").read_text()
+    assert "a match is correct within ground_truth_new.npy" in table

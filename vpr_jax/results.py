@@ -237,8 +237,9 @@ def markdown_table(rows: list[ResultRow], differences: dict | None = None) -> st
     lines = [
         "# Results",
         "",
-        f"{first.get('n_test', '?')} queries per pair, tolerance +-{first.get('tolerance', '?')} "
-        f"frames, seed {first.get('seed', '?')}. recall_at_1 is the fraction of correct "
+        f"{first.get('n_test', '?')} queries per pair, a match is correct within "
+        f"{first.get('ground_truth', '?')}, seed {first.get('seed', '?')}. recall_at_1 is the "
+        "fraction of correct "
         "matches (= precision at 100% recall).",
         "",
         "## Each method at the setting chosen on the validation places",
