@@ -245,7 +245,8 @@ def markdown_table(rows: list[ResultRow], differences: dict | None = None) -> st
         "## Each method at the setting chosen on the validation places",
         "",
         "The removed-PC count with the best recall@1 on the validation places (the end of "
-        "each season's training stretch), scored on the test places. Intervals: 95%, block "
+        "each season's training stretch; for a benchmark trained on its database, its last "
+        "queries, held out of the test), scored on the test places. Intervals: 95%, block "
         "bootstrap over the queries. vs PCA: a paired bootstrap of the difference to the "
         "pair's selected PCA row on the same queries; better / worse when its interval "
         "excludes 0.",
