@@ -142,6 +142,11 @@ def test_bad_data(case, tmp_path):
 
 CONFIG_CASES = {
     "unknown key": (["method=raw"], ["method"]),
+    "frame range for the built-in route": (["data.frame_range=[1,50]"],
+                                           ["data.frame_range applies to Nordland sources"]),
+    "a frame range that is not [first, last]": (["data.source=nordland_images",
+                                                 "data.root=/nowhere", "data.frame_range=[9,2]"],
+                                                ["data.frame_range=[9, 2] is not [first, last]"]),
     "a key that moved": (["train.val_fraction=0.2"],
                          ["train.val_fraction moved to split.val_fraction",
                           "split.val_fraction=0.2"]),

@@ -58,7 +58,8 @@ def _check_objectives(obj: Any, group: str) -> None:
 
 @dataclass(frozen=True)
 class DataConfig:
-    """Where images come from. Every source yields frame-aligned (N, 32, 64) seasons."""
+    """Where images come from: an aligned route (frame-aligned (N, 32, 64) seasons) or a
+    benchmark (database, queries and ground-truth sets)."""
 
     # aligned routes: synthetic | nordland_images | nordland_videos | folders;
     # benchmarks: vpr_bench | positions | nordland_star (docs/guide.md, "Any benchmark")
@@ -116,13 +117,16 @@ class DataConfig:
                    f"from, data.seasons={list(self.seasons)}: name two, e.g. "
                    "data.seasons=[summer,winter]")
 
+        framed = ("nordland_images", "nordland_videos", "folders", "nordland_star")
+        for key in ("frame_list", "frame_range"):
+            _check(self.source in framed or getattr(self, key) is None,
+                   f"data.{key} applies to Nordland sources only: drop it for "
+                   f"data.source={self.source}")
+
     @property
     def aligned_training(self) -> bool:
         """Whether the encoders fit on aligned places of two seasons."""
         return self.source in ROUTE_SOURCES or self.train_source is not None
-        _check(self.source != "synthetic" or self.frame_list is None,
-               "data.frame_list applies to Nordland sources only: drop it for "
-               "data.source=synthetic")
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from vpr_jax.config import BENCHMARK_SOURCES, DataConfig
 from vpr_jax.data.benchmark import Benchmark
 from vpr_jax.data.route import IMAGE_SHAPE, SEASON_ORDER, Route
 from vpr_jax.data.screen import screen_route
+from vpr_jax.errors import UserError
 from vpr_jax.progress import Log
 
 __all__ = ["IMAGE_SHAPE", "SEASON_ORDER", "Benchmark", "Route", "load_data", "load_route",
@@ -46,16 +47,14 @@ def load_benchmark(cfg: DataConfig, seed: int, log: Log = print) -> Benchmark:
         return read_positions(cfg.root, cfg.radius_m, max_pixels=cfg.max_pixels, log=log)
     from vpr_jax.data.benchmark import star_partition
 
+    db, query = _star_seasons(cfg.seasons)  # before anything is read
     route = load_route(dataclasses.replace(cfg, source="nordland_images", train_source=None,
                                            train_root=None), seed, log)  # fmt: skip
-    db, query = _star_seasons(cfg.seasons)
     return star_partition(route, db, query)
 
 
 def _star_seasons(seasons) -> tuple[str, str]:
     """Nordland*: the references are winter, the queries summer (VPR-Bench)."""
-    from vpr_jax.errors import UserError
-
     if set(seasons) != {"summer", "winter"}:
         raise UserError(f"data.source=nordland_star matches summer queries to winter "
                         f"references, data.seasons={list(seasons)}: set "
