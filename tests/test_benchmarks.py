@@ -170,7 +170,7 @@ def test_an_aligned_route_trains_what_learns_from_alignment(route, tmp_path):
     proc = run_cli("data.source=vpr_bench", f"data.root={root}", "data.train_source=synthetic",
                    "data.n_frames=300", "data.seasons=[summer,fall]", "split.n_train=150",
                    "split.n_test=60", "split.gap=10", "methods=[raw,lda,fae]",
-                   "fae.objective=cross_season", "fae.hidden=16", "fae.epochs=2",
+                   "fae.objective=cross_season", "fae.hidden=16", "fae.epochs=1",
                    f"logdir={tmp_path / 'runs'}")  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     rows = {r.method: r for r in read_results(tmp_path / "runs" / "results.csv")}

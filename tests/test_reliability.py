@@ -237,8 +237,10 @@ def _limited(args: list[str], kib: int) -> subprocess.CompletedProcess:
 
 def test_a_checkpoint_that_cannot_be_written_is_one_line_and_the_rerun_completes(tmp_path):
     logdir, models = tmp_path / "runs", tmp_path / "models"
-    args = [*SMALL, "methods=[raw,fae]", "season_pairs=summer-fall", "fae.objective=reconstruct",
-            f"logdir={logdir}", f"train.checkpoint_dir={models}"]  # fmt: skip
+    args = ["data.n_frames=400", "split.n_train=150", "split.n_test=60", "split.gap=10",
+            "methods=[raw,fae]", "season_pairs=summer-fall", "fae.objective=reconstruct",
+            "fae.hidden=32", "fae.epochs=1", f"logdir={logdir}",
+            f"train.checkpoint_dir={models}"]  # fmt: skip
     # TensorBoard runs stay under 100 KiB; the FAE's optimizer state is a file of ~1.1 MB,
     # which orbax (TensorStore, in its own threads) fails to write.
     proc = _limited(args, 600)
