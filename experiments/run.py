@@ -114,36 +114,46 @@ def write_summaries(logdir: Path, cfg: SweepConfig) -> None:
     rows = read_results(logdir / "results.csv")
     if not rows:
         return
+    curve = _curve_reader(logdir)
     atomic_write_text(logdir / "results.md",
-                      markdown_table(rows, differences_to_pca(rows, logdir, cfg)))
+                      markdown_table(rows, differences_to_pca(rows, curve, cfg)))
     figures = logdir / "figures"
     figures.mkdir(exist_ok=True)
-
-    def load_curve(row):
-        with np.load(logdir / row.run / "curve.npz") as z:
-            return z["precision"], z["recall"]
-
-    write_tb_summaries(logdir, rows, cfg)
-    pr_curves_figure(rows, load_curve, figures / "pr_curves.png")
+    write_tb_summaries(logdir, rows, curve, cfg)
+    pr_curves_figure(rows, lambda row: (curve(row.run)["precision"], curve(row.run)["recall"]),
+                     figures / "pr_curves.png")
     correct_matches_figure(rows, figures / "correct_matches.png")
     if len({r.ds for r in rows}) > 1:
         recall_vs_ds_figure(rows, figures / "recall_vs_ds.png")
 
 
 SUMMARY = "summary"  # logdir/summary/<pair>: each pair's selected cells in one run
+PER_QUERY = ("best_scores", "best_correct", "has_match")  # in curve.npz since 2026-12
 
 
-def write_tb_summaries(logdir: Path, rows: list[ResultRow], cfg: SweepConfig) -> None:
+def _curve_reader(logdir: Path):
+    """``run -> curve.npz`` as a dict of arrays, each file read once: results.md's paired
+    differences, the summary runs and the figures all read the selected rows' curves."""
+
+    @functools.cache
+    def curve(run: str) -> dict[str, np.ndarray]:
+        with np.load(logdir / run / "curve.npz") as z:
+            return {name: z[name] for name in z.files}
+
+    return curve
+
+
+def write_tb_summaries(logdir: Path, rows: list[ResultRow], curve, cfg: SweepConfig) -> None:
     """Per season pair, one TensorBoard run holding every method's selected cell
     (``vpr_jax.tb.write_pair_summary``), rewritten whole (aside, then moved into place) from
     the table and the cells' curve.npz. ``tensorboard --logdir LOGDIR/summary`` opens on
-    them; rows whose runs predate the per-query record are left out."""
+    them (``curve``: ``_curve_reader``); rows whose runs predate the per-query record are
+    left out."""
     by_pair: dict[str, list[SummaryCell]] = {}
     for row in selected_rows(rows):
-        with np.load(logdir / row.run / "curve.npz") as z:
-            if "best_correct" not in z:
-                continue
-            per_query = z["best_scores"], z["best_correct"], z["has_match"]
+        if "best_correct" not in curve(row.run):
+            continue
+        per_query = (curve(row.run)[name] for name in PER_QUERY)
         label = model_name(row.method, row.objective)
         label += f"_ds{row.ds:02d}" if row.ds != 1 else ""
         setting = f"k={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else ""
@@ -162,17 +172,15 @@ def write_tb_summaries(logdir: Path, rows: list[ResultRow], cfg: SweepConfig) ->
         os.replace(staging, final)
 
 
-def differences_to_pca(rows: list[ResultRow], logdir: Path, cfg: SweepConfig
+def differences_to_pca(rows: list[ResultRow], curve, cfg: SweepConfig
                        ) -> dict[str, Difference]:
     """Per selected row (by run), recall@1 minus its pair's selected PCA row's, paired on
-    the same queries (``vpr_jax.bootstrap``); rows whose runs predate the per-query record
-    in curve.npz are left out."""
+    the same queries (``vpr_jax.bootstrap``; ``curve``: ``_curve_reader``); rows whose runs
+    predate the per-query record in curve.npz are left out."""
     selected = selected_rows(rows)
 
-    @functools.cache  # each pair's PCA row is every other row's baseline: read it once
     def correct(run: str):
-        with np.load(logdir / run / "curve.npz") as z:
-            return z["best_correct"] if "best_correct" in z else None
+        return curve(run).get("best_correct")
 
     out = {}
     for row in selected:

@@ -105,6 +105,16 @@ def _principal_sines(a, b):
     return np.sqrt(np.clip(1 - cosines**2, 0, None))
 
 
+def _assert_leading_50_agree(fast, full):
+    """The subspace fit's leading 50 components span the full fit's (principal-angle sines
+    below 1e-2) with their variances, and all its components are orthonormal."""
+    assert _principal_sines(fast.components[:50], full.components[:50]).max() < 1e-2
+    np.testing.assert_allclose(fast.explained_variance[:50], full.explained_variance[:50],
+                               rtol=1e-3)
+    gram = np.asarray(fast.components @ fast.components.T)
+    np.testing.assert_allclose(gram, np.eye(len(gram)), atol=1e-4)
+
+
 def test_subspace_solver_finds_the_leading_components_of_route_images():
     from vpr_jax.data.synthetic import synthetic_route
 
@@ -114,11 +124,7 @@ def test_subspace_solver_finds_the_leading_components_of_route_images():
     assert pca.choose_solver(*x.shape, "auto", 100) == "subspace"
     fast = pca.fit_pca(x, 100)  # auto: the subspace solver for 100 of 2,048
     assert fast.components.shape == (100, x.shape[1])
-    assert _principal_sines(fast.components[:50], full.components[:50]).max() < 1e-2
-    np.testing.assert_allclose(fast.explained_variance[:50], full.explained_variance[:50],
-                               rtol=1e-3)
-    gram = np.asarray(fast.components @ fast.components.T)
-    np.testing.assert_allclose(gram, np.eye(100), atol=1e-4)
+    _assert_leading_50_agree(fast, full)
 
 
 def test_subspace_solver_survives_a_steep_spectrum():
@@ -135,11 +141,7 @@ def test_subspace_solver_survives_a_steep_spectrum():
     fast = pca.fit_pca(x, 356)
     assert np.isfinite(np.asarray(fast.components)).all()
     full = pca.fit_pca(x, 356, solver="covariance")
-    assert _principal_sines(fast.components[:50], full.components[:50]).max() < 1e-2
-    np.testing.assert_allclose(fast.explained_variance[:50], full.explained_variance[:50],
-                               rtol=1e-3)
-    gram = np.asarray(fast.components @ fast.components.T)
-    np.testing.assert_allclose(gram, np.eye(356), atol=1e-4)
+    _assert_leading_50_agree(fast, full)
 
 
 def test_removal_keeps_what_training_never_spanned():

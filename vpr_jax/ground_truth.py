@@ -52,6 +52,17 @@ def _check_indices(indices: np.ndarray, n_queries: int, n_db: int) -> np.ndarray
     return idx.astype(np.int64)
 
 
+def _indptr(counts: np.ndarray) -> np.ndarray:
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+
+def _ranges(starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ranges ``starts[i] .. starts[i] + counts[i] - 1`` laid end to end: for every
+    element, the range it belongs to and its position."""
+    rows = np.repeat(np.arange(len(counts)), counts)
+    return rows, starts[rows] + np.arange(rows.size) - _indptr(counts)[rows]
+
+
 class Tolerance(NamedTuple):
     """Query ``i`` (frame ``query_ids[i]``) matches database position ``j`` (frame
     ``db_ids[j]``) when the frame ids differ by at most ``tolerance``."""
@@ -92,24 +103,23 @@ class Tolerance(NamedTuple):
         return np.abs(self.db_ids[idx] - self.query_ids[:, None]) <= self.tolerance
 
     def a_match(self) -> Int[np.ndarray, " nq"]:
-        """Per query the database position of the frame nearest its own (-1 without a
-        match): the image a figure shows as "the right answer"."""
-        order, lo, hi = self._window()
+        """Per query the database position of the frame nearest its own (the lower on a
+        tie; -1 without a match): the image a figure shows as "the right answer"."""
+        if self.n_db == 0:
+            return np.full(self.n_queries, -1, np.int64)
+        order = np.argsort(self.db_ids, kind="stable")
         d = self.db_ids[order]
-        best = np.full(self.n_queries, -1, np.int64)
-        for i in np.flatnonzero(hi > lo):
-            window = np.abs(d[lo[i]:hi[i]] - self.query_ids[i])
-            best[i] = order[lo[i] + int(np.argmin(window))]
-        return best
+        at = np.searchsorted(d, self.query_ids)
+        below, above = np.clip(at - 1, 0, len(d) - 1), np.clip(at, 0, len(d) - 1)
+        gap = lambda pos: np.abs(d[pos] - self.query_ids)  # noqa: E731
+        nearest = np.where(gap(below) <= gap(above), below, above)
+        return np.where(gap(nearest) <= self.tolerance, order[nearest], -1)
 
     def sets(self) -> MatchSets:
         """The same ground truth as explicit sets."""
         order, lo, hi = self._window()
-        counts = hi - lo
-        indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        rows = np.repeat(np.arange(self.n_queries), counts)
-        offsets = np.arange(indptr[-1]) - indptr[rows]
-        return MatchSets.of(indptr, order[lo[rows] + offsets], self.n_db)
+        rows, pos = _ranges(lo, hi - lo)
+        return MatchSets.from_pairs(rows, order[pos], self.n_queries, self.n_db)
 
     def describe(self) -> str:
         return f"+-{self.tolerance} frames"
@@ -132,15 +142,22 @@ class MatchSets(NamedTuple):
             raise ValueError("indptr must start at 0 and never decrease")
         if indptr[-1] != indices.size:
             raise ValueError(f"indptr ends at {indptr[-1]} but there are {indices.size} indices")
-        if indices.size and (indices.min() < 0 or indices.max() >= n_db):
+        n_queries = indptr.size - 1
+        rows = np.repeat(np.arange(n_queries), np.diff(indptr))
+        return cls.from_pairs(rows, indices, n_queries, n_db, source)
+
+    @classmethod
+    def from_pairs(cls, rows, cols, n_queries: int, n_db: int, source: str = "match sets"
+                   ) -> MatchSets:
+        """Sets from (query, database position) pairs in any order, repeats allowed."""
+        cols = np.asarray(cols, np.int64)
+        if cols.size and (cols.min() < 0 or cols.max() >= n_db):
             raise ValueError(f"match indices must lie in [0, {n_db}), got "
-                             f"[{indices.min()}, {indices.max()}]")  # fmt: skip
-        rows = np.repeat(np.arange(indptr.size - 1), np.diff(indptr))
-        keys = np.unique(rows * np.int64(max(n_db, 1)) + indices)  # sorted, repeats dropped
-        rows, cols = np.divmod(keys, np.int64(max(n_db, 1)))
-        counts = np.bincount(rows, minlength=indptr.size - 1)
-        return cls(np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), cols, int(n_db),
-                   source)
+                             f"[{cols.min()}, {cols.max()}]")  # fmt: skip
+        stride = np.int64(max(n_db, 1))
+        keys = np.unique(np.asarray(rows, np.int64) * stride + cols)  # sorted, no repeats
+        rows, cols = np.divmod(keys, stride)
+        return cls(_indptr(np.bincount(rows, minlength=n_queries)), cols, int(n_db), source)
 
     @property
     def n_queries(self) -> int:
@@ -173,10 +190,8 @@ class MatchSets(NamedTuple):
         """The ground truth of the queries at positions ``queries`` (in that order)."""
         q = np.asarray(queries, np.int64)
         counts = np.diff(self.indptr)[q]
-        indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        rows = np.repeat(np.arange(q.size), counts)
-        starts = self.indptr[q][rows] + (np.arange(indptr[-1]) - indptr[rows])
-        return MatchSets(indptr, self.indices[starts], self.n_db, self.source)
+        _, pos = _ranges(self.indptr[q], counts)
+        return MatchSets(_indptr(counts), self.indices[pos], self.n_db, self.source)
 
     def sets(self) -> MatchSets:
         return self
@@ -193,7 +208,7 @@ def match_sets(rows: Sequence[Sequence[int]], n_db: int, source: str = "match se
     """Sets from one list of correct database positions per query."""
     counts = np.fromiter((len(r) for r in rows), np.int64, len(rows))
     flat = np.fromiter((int(j) for r in rows for j in r), np.int64, int(counts.sum()))
-    return MatchSets.of(np.concatenate([[0], np.cumsum(counts)]), flat, n_db, source)
+    return MatchSets.of(_indptr(counts), flat, n_db, source)
 
 
 def within_radius(query_xy: Float[np.ndarray, "nq 2"], db_xy: Float[np.ndarray, "ndb 2"],
@@ -223,15 +238,9 @@ def within_radius(query_xy: Float[np.ndarray, "nq 2"], db_xy: Float[np.ndarray, 
             key = (cell_q[:, 0] + 1 + dx) * width + (cell_q[:, 1] + 1 + dy)
             lo = np.searchsorted(sorted_keys, key, side="left")
             hi = np.searchsorted(sorted_keys, key, side="right")
-            counts = hi - lo
-            rows = np.repeat(np.arange(len(q)), counts)
-            starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
-            cand = order[starts + np.arange(counts.sum())]
-            near = np.sum((q[rows] - d[cand]) ** 2, axis=1) <= radius * radius
+            rows, pos = _ranges(lo, hi - lo)
+            near = np.sum((q[rows] - d[order[pos]]) ** 2, axis=1) <= radius * radius
             pairs_q.append(rows[near])
-            pairs_d.append(cand[near])
-    rows, cols = np.concatenate(pairs_q), np.concatenate(pairs_d)
-    counts = np.bincount(rows, minlength=len(q))
-    order = np.lexsort((cols, rows))
-    return MatchSets.of(np.concatenate([[0], np.cumsum(counts)]), cols[order], len(d),
-                        f"within {radius:g} m")
+            pairs_d.append(order[pos][near])
+    return MatchSets.from_pairs(np.concatenate(pairs_q), np.concatenate(pairs_d), len(q),
+                                len(d), f"within {radius:g} m")
