@@ -41,8 +41,9 @@ from vpr_jax.encoders.train import make_optimizer, make_train_step
 
 def _cae(model: str, **changes) -> ae.CAESpec:
     cfg = CAEConfig(model=model, **changes)
-    return ae.CAESpec(cfg.channels, cfg.kernel_sizes, cfg.code_channels, cfg.space_to_depth,
-                      cfg.standardise)
+    return ae.CAESpec(
+        cfg.channels, cfg.kernel_sizes, cfg.code_channels, cfg.space_to_depth, cfg.standardise
+    )
 
 
 MODELS = (  # name, spec, seed's Table 5 ms per image on a GTX 1060 (its peer)
@@ -77,8 +78,9 @@ def gflops(flop: float | None, seconds: float) -> str:
     return f"{flop / seconds / 1e9:7.1f}" if flop else f"{'n/a':>7}"
 
 
-def bench_encode(spec, seed_ms: float, name: str, db: np.ndarray, query: np.ndarray,
-                 repeats: int) -> None:  # fmt: skip
+def bench_encode(
+    spec, seed_ms: float, name: str, db: np.ndarray, query: np.ndarray, repeats: int
+) -> None:
     graphdef, params = ae.build(spec, jax.random.key(0))
     encode = ae.make_encode(graphdef)
     first, warm = timed(lambda: (encode(params, db), encode(params, query)), repeats)
@@ -90,9 +92,11 @@ def bench_encode(spec, seed_ms: float, name: str, db: np.ndarray, query: np.ndar
     ratio = ms / seed_ms
     met = "yes" if ratio <= GOAL else "NO"
     mflop = f"{flop / (len(db) + len(query)) / 1e6:7.1f}" if flop else f"{'n/a':>7}"
-    print(f"{name:<24} {ae.count_params(params):>9,} {encoder_params(params):>9,} {code:>5} "
-          f"{mflop} {first:8.2f} {max(first - warm, 0.0):8.2f} {warm:8.3f} {ms:9.4f} "
-          f"{gflops(flop, warm)} {seed_ms:8.2f} {ratio:7.4f}x {met:>4}")  # fmt: skip
+    print(
+        f"{name:<24} {ae.count_params(params):>9,} {encoder_params(params):>9,} {code:>5} "
+        f"{mflop} {first:8.2f} {max(first - warm, 0.0):8.2f} {warm:8.3f} {ms:9.4f} "
+        f"{gflops(flop, warm)} {seed_ms:8.2f} {ratio:7.4f}x {met:>4}"
+    )
 
 
 def bench_train(spec, name: str, images: np.ndarray, steps: int) -> None:
@@ -120,23 +124,30 @@ def bench_train(spec, name: str, images: np.ndarray, steps: int) -> None:
 
     start = time.perf_counter()
     for s in range(steps):
-        params, opt_state, metrics = train_step(params, opt_state, batch(s),
-                                                jax.random.fold_in(key, s + 2))  # fmt: skip
+        params, opt_state, metrics = train_step(
+            params, opt_state, batch(s), jax.random.fold_in(key, s + 2)
+        )
     jax.block_until_ready((params, opt_state, metrics))
     seconds = time.perf_counter() - start
     epoch = seconds / steps * per_epoch
     timed_note = f"{steps}/{per_epoch}" + ("" if steps == per_epoch else " (extrapolated)")
-    print(f"{name:<24} {timed_note:<20} {compile_s:8.2f} {seconds:8.2f} {epoch:9.2f} "
-          f"{per_epoch * b / epoch:9.0f} {gflops(flop and flop * steps, seconds)} "
-          f"{float(metrics['loss']):9.5f}")  # fmt: skip
+    print(
+        f"{name:<24} {timed_note:<20} {compile_s:8.2f} {seconds:8.2f} {epoch:9.2f} "
+        f"{per_epoch * b / epoch:9.0f} {gflops(flop and flop * steps, seconds)} "
+        f"{float(metrics['loss']):9.5f}"
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3, help="warm encode runs (median)")
-    parser.add_argument("--epoch-steps", type=int, default=None,
-                        help="training steps timed per model (default: the whole epoch, 70); "
-                        "fewer are extrapolated to the epoch")  # fmt: skip
+    parser.add_argument(
+        "--epoch-steps",
+        type=int,
+        default=None,
+        help="training steps timed per model (default: the whole epoch, 70); "
+        "fewer are extrapolated to the epoch",
+    )
     args = parser.parse_args()
     if args.epoch_steps is not None and args.epoch_steps < 1:
         parser.error("--epoch-steps must be >= 1")
@@ -159,9 +170,11 @@ def main() -> None:
         f"warm median of {args.repeats}"
     )
     print(f"(peer: the seed's Table 5 on a GTX 1060; goal: ours <= {GOAL}x of it)")
-    print(f"{'model':<24} {'params':>9} {'encoder':>9} {'code':>5} {'MFLOP':>7} {'first s':>8} "
-          f"{'compile':>8} {'warm s':>8} {'ms/image':>9} {'GFLOP/s':>7} {'seed ms':>8} "
-          f"{'ratio':>8} {'goal':>4}")  # fmt: skip
+    print(
+        f"{'model':<24} {'params':>9} {'encoder':>9} {'code':>5} {'MFLOP':>7} {'first s':>8} "
+        f"{'compile':>8} {'warm s':>8} {'ms/image':>9} {'GFLOP/s':>7} {'seed ms':>8} "
+        f"{'ratio':>8} {'goal':>4}"
+    )
     for name, spec, seed_ms in MODELS:
         bench_encode(spec, seed_ms, name, db, query, args.repeats)
     print(
@@ -177,8 +190,10 @@ def main() -> None:
         f"({per_epoch} steps/epoch), {settings.optimizer} {settings.learning_rate:g}, "
         f"augmentation {AugmentConfig()}"
     )
-    print(f"{'model':<24} {'steps timed':<20} {'compile':>8} {'timed s':>8} {'s/epoch':>9} "
-          f"{'images/s':>9} {'GFLOP/s':>7} {'loss':>9}")  # fmt: skip
+    print(
+        f"{'model':<24} {'steps timed':<20} {'compile':>8} {'timed s':>8} {'s/epoch':>9} "
+        f"{'images/s':>9} {'GFLOP/s':>7} {'loss':>9}"
+    )
     for name, spec, _ in MODELS:
         bench_train(spec, name, train_images, steps)
     print(

@@ -36,8 +36,14 @@ def fit_ours(x: np.ndarray, c: int) -> ica.ICAState:
 
 
 def fit_sklearn(x: np.ndarray, c: int, solver: str) -> tuple[FastICA, float]:
-    model = FastICA(c, algorithm="parallel", whiten="unit-variance", whiten_solver=solver,
-                    random_state=0, **SETTINGS)  # fmt: skip
+    model = FastICA(
+        c,
+        algorithm="parallel",
+        whiten="unit-variance",
+        whiten_solver=solver,
+        random_state=0,
+        **SETTINGS,
+    )
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # ConvergenceWarning: n_iter is printed instead
@@ -64,9 +70,11 @@ def main() -> None:
     sizes = [int(c) for c in args.components.split(",")]
 
     train, _, _ = seed_route()
-    print(f"jax {jax.__version__} on {jax.devices()[0].platform}; images {train.shape} "
-          f"{train.dtype}; fun={SETTINGS['fun']} tol={SETTINGS['tol']} "
-          f"max_iter={SETTINGS['max_iter']}\n")  # fmt: skip
+    print(
+        f"jax {jax.__version__} on {jax.devices()[0].platform}; images {train.shape} "
+        f"{train.dtype}; fun={SETTINGS['fun']} tol={SETTINGS['tol']} "
+        f"max_iter={SETTINGS['max_iter']}\n"
+    )
     header = f"{'problem':<22} {'fit':<26} {'seconds':>8} {'n_iter':>7} {'speed-up':>9}"
 
     print("Route images (speed-up = peer seconds / ours; goal >= 5x against the default)")
@@ -75,12 +83,16 @@ def main() -> None:
         first, ours = timed(lambda c=c: fit_ours(train, c), args.repeats)
         state = fit_ours(train, c)
         name = f"images, {c} ICs"
-        print(f"{name:<22} {'ours (JAX)':<26} {ours:8.2f} {int(state.n_iter):7d} {'':>9}"
-              f"   first call {first:.2f} s incl. compilation")  # fmt: skip
+        print(
+            f"{name:<22} {'ours (JAX)':<26} {ours:8.2f} {int(state.n_iter):7d} {'':>9}"
+            f"   first call {first:.2f} s incl. compilation"
+        )
         for solver in ("svd", "eigh"):
             model, peer = fit_sklearn(train, c, solver)
-            print(f"{'':<22} {'sklearn whiten_solver=' + solver:<26} {peer:8.2f} "
-                  f"{model.n_iter_:7d} {peer / ours:8.1f}x")  # fmt: skip
+            print(
+                f"{'':<22} {'sklearn whiten_solver=' + solver:<26} {peer:8.2f} "
+                f"{model.n_iter_:7d} {peer / ours:8.1f}x"
+            )
 
     print("\nKnown sources mixed into 5,000 x 2,048 (Amari distance: lower is better)")
     print(header + f" {'amari':>7}")
@@ -92,10 +104,14 @@ def main() -> None:
         model, peer = fit_sklearn(x, c, "svd")
         d_peer = ica.amari_distance(model.components_, mixing)
         name = f"{c} sources"
-        print(f"{name:<22} {'ours (JAX)':<26} {ours:8.2f} {int(state.n_iter):7d} {'':>9} "
-              f"{d_ours:7.4f}")  # fmt: skip
-        print(f"{'':<22} {'sklearn whiten_solver=svd':<26} {peer:8.2f} {model.n_iter_:7d} "
-              f"{peer / ours:8.1f}x {d_peer:7.4f}")  # fmt: skip
+        print(
+            f"{name:<22} {'ours (JAX)':<26} {ours:8.2f} {int(state.n_iter):7d} {'':>9} "
+            f"{d_ours:7.4f}"
+        )
+        print(
+            f"{'':<22} {'sklearn whiten_solver=svd':<26} {peer:8.2f} {model.n_iter_:7d} "
+            f"{peer / ours:8.1f}x {d_peer:7.4f}"
+        )
 
 
 if __name__ == "__main__":

@@ -47,8 +47,10 @@ def main() -> None:
     args = parser.parse_args()
 
     train, db, query = seed_route()
-    print(f"jax {jax.__version__} on {jax.devices()[0].platform}; train {train.shape}, "
-          f"queries {query.shape[0]} x database {db.shape[0]}\n")
+    print(
+        f"jax {jax.__version__} on {jax.devices()[0].platform}; train {train.shape}, "
+        f"queries {query.shape[0]} x database {db.shape[0]}\n"
+    )
 
     full = run_peer("pca_covariance_eigh", args.repeats)
     print(f"peers' BLAS (run without {', '.join(FORCING)}): {full['blas']}")
@@ -57,54 +59,66 @@ def main() -> None:
     row("PCA fit", ours, full["seconds"], "sklearn covariance_eigh", "<= 1.0x")
     print(f"{'':<34} first call incl. compilation {first:.3f} s")
     _, ours = timed(lambda: pca.fit_pca(train, 100), args.repeats)
-    row("PCA fit, 100 components", ours, run_peer("pca_randomized_100", args.repeats)["seconds"],
-        "sklearn randomized", "<= 1.0x")
+    row(
+        "PCA fit, 100 components",
+        ours,
+        run_peer("pca_randomized_100", args.repeats)["seconds"],
+        "sklearn randomized",
+        "<= 1.0x",
+    )
     row("  the same", ours, full["seconds"], "sklearn covariance_eigh", "<= 0.35x")
 
     state = pca.fit_pca(train, max(REMOVED_PCS))
 
     def removed_pc_sweep(ks):
-        return top_k_matches(pca.suffix_descriptors(state, query),
-                             pca.suffix_descriptors(state, db), 10, starts=ks)
+        return top_k_matches(
+            pca.suffix_descriptors(state, query), pca.suffix_descriptors(state, db), 10, starts=ks
+        )
 
     _, all_k = timed(lambda: removed_pc_sweep(REMOVED_PCS), args.repeats)
     _, one_k = timed(lambda: removed_pc_sweep((50,)), args.repeats)
-    row(f"removed-PC sweep, {len(REMOVED_PCS)} counts", all_k, one_k, "one count (k=50)",
-        "<= 1.2x")
+    row(f"removed-PC sweep, {len(REMOVED_PCS)} counts", all_k, one_k, "one count (k=50)", "<= 1.2x")
     print(f"{'':<34} encode + match only; each count adds one elementwise pass and a top-K")
     print(f"{'':<34} over the {query.shape[0]} x {db.shape[0]} scores (the size of its ranking)")
 
     def pair_pipeline(ks):
         fitted = pca.fit_pca(train, max(ks))
-        return top_k_matches(pca.suffix_descriptors(fitted, query),
-                             pca.suffix_descriptors(fitted, db), 10, starts=ks)
+        return top_k_matches(
+            pca.suffix_descriptors(fitted, query), pca.suffix_descriptors(fitted, db), 10, starts=ks
+        )
 
     _, all_k = timed(lambda: pair_pipeline(REMOVED_PCS), args.repeats)
     _, one_k = timed(lambda: pair_pipeline((50,)), args.repeats)
     row("  the same with the PCA fit", all_k, one_k, "fit + one count", "<= 1.5x")
 
     _, ours = timed(lambda: top_k_matches(query, db, 10), args.repeats)
-    row("matching, top-10 cosine", ours, run_peer("numpy_top_k", args.repeats)["seconds"],
-        "numpy brute force", "<= 1.2x")
+    row(
+        "matching, top-10 cosine",
+        ours,
+        run_peer("numpy_top_k", args.repeats)["seconds"],
+        "numpy brute force",
+        "<= 1.2x",
+    )
 
     rng = np.random.default_rng(0)  # route-sized top-10 lists with ~30% true matches
     n_db, n_q = 35_768, query.shape[0]
     db_ids, query_ids = rng.permutation(n_db) + 1, np.arange(1, n_db + 1, 10)[:n_q]
     where = np.empty(n_db + 1, np.int64)
     where[db_ids] = np.arange(n_db)
-    top_idx = np.where(rng.random((n_q, 10)) < 0.3, where[query_ids][:, None],
-                       rng.integers(0, n_db, (n_q, 10)))  # fmt: skip
+    top_idx = np.where(
+        rng.random((n_q, 10)) < 0.3, where[query_ids][:, None], rng.integers(0, n_db, (n_q, 10))
+    )
     top_scores = -np.sort(-rng.random((n_q, 10)), axis=1)
-    _, ours = timed(lambda: evaluate_top_k(top_scores, top_idx, query_ids, db_ids, 2),
-                    args.repeats)  # fmt: skip
+    _, ours = timed(lambda: evaluate_top_k(top_scores, top_idx, query_ids, db_ids, 2), args.repeats)
     _, peer = timed(lambda: dense_metrics(top_idx, query_ids, db_ids, 2), args.repeats)
-    row(f"metrics, {n_q} top-10 lists of {n_db}", ours, peer, "numpy dense ground truth",
-        "<= 1.0x")  # fmt: skip
+    row(f"metrics, {n_q} top-10 lists of {n_db}", ours, peer, "numpy dense ground truth", "<= 1.0x")
 
     both = np.concatenate([db, query])
     _, enc = timed(lambda: pca.suffix_descriptors(state, both), args.repeats)
-    print(f"\n{'PCA encode (100 + residual)':<34} {1000 * enc / len(both):9.4f} ms per image "
-          f"(seed's Table 5 baseline: 0.1 ms)")
+    print(
+        f"\n{'PCA encode (100 + residual)':<34} {1000 * enc / len(both):9.4f} ms per image "
+        f"(seed's Table 5 baseline: 0.1 ms)"
+    )
 
 
 if __name__ == "__main__":

@@ -52,16 +52,23 @@ def measure(queries, database, ds: int, repeats: int) -> dict:
     _, ref_idx = sequence_top_k_numpy(sim, ds)
     peer = time.perf_counter() - start
     _, idx = sequence_top_k(sim32, ds)
-    return {"first": first, "ours": ours, "from_descriptors": from_desc, "peer": peer,
-            "agree": float(np.mean(idx[:, 0] == ref_idx[:, 0]))}
+    return {
+        "first": first,
+        "ours": ours,
+        "from_descriptors": from_desc,
+        "peer": peer,
+        "agree": float(np.mean(idx[:, 0] == ref_idx[:, 0])),
+    }
 
 
 def compare(name: str, queries, database, ds: int, repeats: int) -> None:
     m = measure(queries, database, ds, repeats)
     row(f"{name} ds={ds}", m["ours"], m["peer"], "numpy loop over queries", "< 1x")
-    print(f"{'':<34} first call {m['first']:.2f} s (compiles); from descriptors, cosine "
-          f"included: {m['from_descriptors']:.2f} s; best match agrees with numpy for "
-          f"{m['agree']:.1%} of queries")
+    print(
+        f"{'':<34} first call {m['first']:.2f} s (compiles); from descriptors, cosine "
+        f"included: {m['from_descriptors']:.2f} s; best match agrees with numpy for "
+        f"{m['agree']:.1%} of queries"
+    )
 
 
 def main() -> None:
@@ -79,8 +86,13 @@ def main() -> None:
     test = slice(2600, 2600 + N_TEST)  # the seed's test places: after 2,500 + a gap of 100
     compare(f"{N_TEST:,} x {N_TEST:,}", fall[test], summer[test], args.ds, args.repeats)
     if not args.no_full_route:
-        compare(f"{N_TEST:,} x {FULL_ROUTE:,} (full)", fall[test], summer, args.ds,
-                max(1, args.repeats - 2))
+        compare(
+            f"{N_TEST:,} x {FULL_ROUTE:,} (full)",
+            fall[test],
+            summer,
+            args.ds,
+            max(1, args.repeats - 2),
+        )
 
 
 if __name__ == "__main__":

@@ -33,8 +33,10 @@ def seed_route(n_train: int = 2500, gap: int = 100, n_test: int = 3569):
     route = synthetic_route(n_train + gap + n_test, ("summer", "fall"), seed=0)
     summer, fall = route.images["summer"], route.images["fall"]
     train = np.concatenate([summer[:n_train], fall[:n_train]]).reshape(2 * n_train, -1)
-    return train, summer[n_train + gap :].reshape(n_test, -1), fall[n_train + gap :].reshape(
-        n_test, -1
+    return (
+        train,
+        summer[n_train + gap :].reshape(n_test, -1),
+        fall[n_train + gap :].reshape(n_test, -1),
     )
 
 

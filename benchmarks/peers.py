@@ -32,9 +32,12 @@ def blas_report() -> str:
     """The BLAS libraries loaded in this process and the kernel each uses (threadpoolctl)."""
     from threadpoolctl import threadpool_info
 
-    found = [f"{i.get('internal_api')} {i.get('version')} {i.get('architecture')} "
-             f"({i.get('num_threads')} threads)" for i in threadpool_info()
-             if i.get("user_api") == "blas"]  # fmt: skip
+    found = [
+        f"{i.get('internal_api')} {i.get('version')} {i.get('architecture')} "
+        f"({i.get('num_threads')} threads)"
+        for i in threadpool_info()
+        if i.get("user_api") == "blas"
+    ]
     return "; ".join(found) or "no BLAS library loaded"
 
 
@@ -50,8 +53,12 @@ def run_peer(task: str, repeats: int) -> dict:
     JSON (``seconds``: warm median, ``first``, ``blas``, and task extras)."""
     env = {k: v for k, v in os.environ.items() if k not in FORCING}
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(HERE)])
-    proc = subprocess.run([sys.executable, str(HERE / "peers.py"), task, "--repeats",
-                           str(repeats)], env=env, capture_output=True, text=True)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, str(HERE / "peers.py"), task, "--repeats", str(repeats)],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     if proc.returncode:
         raise SystemExit(f"peer {task} failed:\n{proc.stderr[-2000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -87,8 +94,9 @@ def native_blas_process() -> None:
     variables, for benchmarks whose peers run in-process; does nothing when none is set."""
     if any(k in os.environ for k in FORCING):
         env = {k: v for k, v in os.environ.items() if k not in FORCING}
-        print(f"re-running without {', '.join(FORCING)} (the peers' native BLAS kernel)",
-              flush=True)  # fmt: skip
+        print(
+            f"re-running without {', '.join(FORCING)} (the peers' native BLAS kernel)", flush=True
+        )
         os.execve(sys.executable, [sys.executable, *sys.argv], env)
 
 
@@ -99,16 +107,26 @@ def _tasks():
     train, db, query = seed_route()
 
     def fastica():
-        model = FastICA(256, algorithm="parallel", whiten="unit-variance", whiten_solver="svd",
-                        random_state=0, fun="logcosh", max_iter=200, tol=1e-4)  # fmt: skip
+        model = FastICA(
+            256,
+            algorithm="parallel",
+            whiten="unit-variance",
+            whiten_solver="svd",
+            random_state=0,
+            fun="logcosh",
+            max_iter=200,
+            tol=1e-4,
+        )
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # ConvergenceWarning
             model.fit(train)
 
     return {
         "pca_covariance_eigh": (lambda: PCA(svd_solver="covariance_eigh").fit(train), None),
-        "pca_randomized_100": (lambda: PCA(100, svd_solver="randomized", random_state=0)
-                               .fit(train), None),  # fmt: skip
+        "pca_randomized_100": (
+            lambda: PCA(100, svd_solver="randomized", random_state=0).fit(train),
+            None,
+        ),
         "fastica_256": (fastica, 0),  # one run: it takes seconds
         "numpy_top_k": (lambda: numpy_top_k(query, db), None),
     }
@@ -124,8 +142,9 @@ def main() -> None:
     args = parser.parse_args()
     fn, repeats = _tasks()[args.task]
     first, seconds = _timed(fn, args.repeats if repeats is None else repeats)
-    print(json.dumps({"task": args.task, "seconds": seconds, "first": first,
-                      "blas": blas_report()}))  # fmt: skip
+    print(
+        json.dumps({"task": args.task, "seconds": seconds, "first": first, "blas": blas_report()})
+    )
 
 
 if __name__ == "__main__":

@@ -38,22 +38,35 @@ def sweep_args(args: argparse.Namespace) -> list[str]:
     seasons = [s.strip() for s in args.seasons.split(",")]
     if len(seasons) != 2:
         raise SystemExit(f"--seasons={args.seasons}: name two seasons, database first")
-    return ["data.source=folders", f"data.root={Path(args.root).expanduser().resolve()}",
-            f"data.seasons=[{','.join(seasons)}]", f"season_pairs={'-'.join(seasons)}",
-            f"split.n_train={args.n_train}", f"split.n_test={args.n_test}",
-            f"split.gap={args.gap}", f"tolerance={args.tolerance}", "sequence.enabled=true",
-            "sequence.ds=[1,10]", f"logdir={args.logdir}", *args.overrides]  # fmt: skip
+    return [
+        "data.source=folders",
+        f"data.root={Path(args.root).expanduser().resolve()}",
+        f"data.seasons=[{','.join(seasons)}]",
+        f"season_pairs={'-'.join(seasons)}",
+        f"split.n_train={args.n_train}",
+        f"split.n_test={args.n_test}",
+        f"split.gap={args.gap}",
+        f"tolerance={args.tolerance}",
+        "sequence.enabled=true",
+        "sequence.ds=[1,10]",
+        f"logdir={args.logdir}",
+        *args.overrides,
+    ]
 
 
 def table(rows) -> str:
     """One line per method and objective: the removed-PC count chosen on the validation
     places (``selected``), its test figures with the recall@1 interval, the selected row
     of sequences of ten, and the count chosen on the test queries (optimistic)."""
-    lines = ["| method | objective | k | recall@1 [95% CI] | AUC-PR | R@100P | recall@10 | "
-             "recall@1, ds=10 | optimistic k: recall@1 | fit s |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
-    groups = sorted({(r.method, r.objective) for r in rows},
-                    key=lambda g: (ORDER.index(g[0]) if g[0] in ORDER else len(ORDER), g[1]))
+    lines = [
+        "| method | objective | k | recall@1 [95% CI] | AUC-PR | R@100P | recall@10 | "
+        "recall@1, ds=10 | optimistic k: recall@1 | fit s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    groups = sorted(
+        {(r.method, r.objective) for r in rows},
+        key=lambda g: (ORDER.index(g[0]) if g[0] in ORDER else len(ORDER), g[1]),
+    )
     chosen = {(r.method, r.objective, r.ds): r for r in selected_rows(rows)}
     for method, objective in groups:
         single = [r for r in rows if (r.method, r.objective, r.ds) == (method, objective, 1)]
@@ -64,14 +77,15 @@ def table(rows) -> str:
         seq = chosen.get((method, objective, 10))
         axis = method in SWEEPS_REMOVED_PCS
         k = str(sel.removed_pcs) if axis else ""
-        ds10 = (f"{seq.recall_at_1:.3f}" + (f" (k={seq.removed_pcs})" if axis else "")
-                if seq else "")  # fmt: skip
+        ds10 = f"{seq.recall_at_1:.3f}" + (f" (k={seq.removed_pcs})" if axis else "") if seq else ""
         optimistic = f"{best.removed_pcs}: {best.recall_at_1:.3f}" if axis else ""
-        lines.append(f"| {method} | {objective} | {k} | {sel.recall_at_1:.3f} "
-                     f"[{sel.recall_at_1_ci_low:.3f}, {sel.recall_at_1_ci_high:.3f}] | "
-                     f"{sel.auc_pr:.3f} | {sel.recall_at_100_precision:.3f} | "
-                     f"{sel.recall_at_10:.3f} | {ds10} | {optimistic} | "
-                     f"{sel.fit_seconds:.1f} |")
+        lines.append(
+            f"| {method} | {objective} | {k} | {sel.recall_at_1:.3f} "
+            f"[{sel.recall_at_1_ci_low:.3f}, {sel.recall_at_1_ci_high:.3f}] | "
+            f"{sel.auc_pr:.3f} | {sel.recall_at_100_precision:.3f} | "
+            f"{sel.recall_at_10:.3f} | {ds10} | {optimistic} | "
+            f"{sel.fit_seconds:.1f} |"
+        )
     return "\n".join(lines)
 
 

@@ -50,8 +50,9 @@ from vpr_jax.results import read_results
 
 REPO = Path(__file__).resolve().parent.parent
 SEED_TABLE_4 = ("1:12:05", "1:57:32", "3:43:46", "7:56:09")  # baseline, ICA, FAE, CAE
-SEED_TABLE_4_S = sum(int(h) * 3600 + int(m) * 60 + int(s)
-                     for h, m, s in (t.split(":") for t in SEED_TABLE_4))  # fmt: skip
+SEED_TABLE_4_S = sum(
+    int(h) * 3600 + int(m) * 60 + int(s) for h, m, s in (t.split(":") for t in SEED_TABLE_4)
+)
 PROTOCOL_GOAL_S = 600.0
 ICA_COMPONENTS = 256
 
@@ -60,13 +61,15 @@ class Table:
     def __init__(self):
         self.rows: list[tuple[str, str, str, str, str, str]] = []
 
-    def add(self, what: str, ours: float, peer: float, peer_name: str, goal: float,
-            unit: str = "s") -> None:  # fmt: skip
+    def add(
+        self, what: str, ours: float, peer: float, peer_name: str, goal: float, unit: str = "s"
+    ) -> None:
         ratio = ours / peer
         fmt = (lambda v: f"{v:.4f} {unit}") if unit == "ms" else (lambda v: f"{v:.3f} {unit}")
         met = "yes" if ratio <= goal else "NO"
-        self.rows.append((what, fmt(ours), f"{peer_name} {fmt(peer)}", f"{ratio:.3f}x",
-                          f"<= {goal:g}x", met))  # fmt: skip
+        self.rows.append(
+            (what, fmt(ours), f"{peer_name} {fmt(peer)}", f"{ratio:.3f}x", f"<= {goal:g}x", met)
+        )
         print(f"  {what}: {ratio:.3f}x", flush=True)
 
     def print(self) -> None:
@@ -83,42 +86,68 @@ def linear_rows(table: Table, train, db, query, repeats: int) -> None:
     print(f"  peers' BLAS (run without {', '.join(FORCING)}): {peer['blas']}")
     print(f"  ours: {ours_report()}", flush=True)
     _, ours = timed(lambda: pca.fit_pca(train, solver="covariance"), repeats)
-    table.add("PCA fit, every component, 5,000 x 2,048", ours, peer["seconds"],
-              "sklearn covariance_eigh", 1.0)
+    table.add(
+        "PCA fit, every component, 5,000 x 2,048",
+        ours,
+        peer["seconds"],
+        "sklearn covariance_eigh",
+        1.0,
+    )
     _, ours = timed(lambda: pca.fit_pca(train, 100), repeats)  # auto: subspace
-    table.add("PCA fit, 100 components", ours, run_peer("pca_randomized_100", repeats)["seconds"],
-              "sklearn randomized", 1.0)
-    table.add("  the same vs the full fit", ours, peer["seconds"], "sklearn covariance_eigh",
-              0.35)
+    table.add(
+        "PCA fit, 100 components",
+        ours,
+        run_peer("pca_randomized_100", repeats)["seconds"],
+        "sklearn randomized",
+        1.0,
+    )
+    table.add("  the same vs the full fit", ours, peer["seconds"], "sklearn covariance_eigh", 0.35)
 
     state = pca.fit_pca(train, max(REMOVED_PCS))
 
     def sweep(ks):
-        return top_k_matches(pca.suffix_descriptors(state, query),
-                             pca.suffix_descriptors(state, db), 10, starts=ks)
+        return top_k_matches(
+            pca.suffix_descriptors(state, query), pca.suffix_descriptors(state, db), 10, starts=ks
+        )
 
     _, all_k = timed(lambda: sweep(REMOVED_PCS), repeats)
     _, one_k = timed(lambda: sweep((50,)), repeats)
     table.add(f"removed-PC sweep, {len(REMOVED_PCS)} counts", all_k, one_k, "one count", 1.2)
 
     _, ours = timed(lambda: fit_ica(train, ICA_COMPONENTS), max(1, repeats // 2))
-    table.add(f"FastICA, {ICA_COMPONENTS} components", ours,
-              run_peer("fastica_256", repeats)["seconds"], "sklearn parallel", 0.2)
+    table.add(
+        f"FastICA, {ICA_COMPONENTS} components",
+        ours,
+        run_peer("fastica_256", repeats)["seconds"],
+        "sklearn parallel",
+        0.2,
+    )
 
     _, ours = timed(lambda: top_k_matches(query, db, 10), repeats)
-    table.add("matching, top-10 of 3,569 x 3,569", ours,
-              run_peer("numpy_top_k", repeats)["seconds"], "numpy brute force", 1.2)
+    table.add(
+        "matching, top-10 of 3,569 x 3,569",
+        ours,
+        run_peer("numpy_top_k", repeats)["seconds"],
+        "numpy brute force",
+        1.2,
+    )
     seq = measure_sequence(query, db, 10, repeats)
-    table.add("sequence matching ds=10, 3,569 x 3,569", seq["ours"], seq["peer"],
-              "numpy loop over queries", 1.0)
+    table.add(
+        "sequence matching ds=10, 3,569 x 3,569",
+        seq["ours"],
+        seq["peer"],
+        "numpy loop over queries",
+        1.0,
+    )
 
     both = np.concatenate([db, query])
     _, enc = timed(lambda: pca.suffix_descriptors(state, both), repeats)
     table.add("encode PCA", 1000 * enc / len(both), 0.1, "seed Table 5", 1.0, "ms")
     ica_state = fit_ica(train, ICA_COMPONENTS)
     _, enc = timed(lambda: ica.encode(ica_state, both), repeats)
-    table.add(f"encode ICA ({ICA_COMPONENTS})", 1000 * enc / len(both), 0.3, "seed Table 5", 1.0,
-              "ms")  # fmt: skip
+    table.add(
+        f"encode ICA ({ICA_COMPONENTS})", 1000 * enc / len(both), 0.3, "seed Table 5", 1.0, "ms"
+    )
 
 
 def encoder_rows(table: Table, db, query, repeats: int) -> None:
@@ -139,12 +168,24 @@ def encoder_rows(table: Table, db, query, repeats: int) -> None:
 def protocol_row(table: Table, extra: list[str]) -> None:
     with tempfile.TemporaryDirectory(prefix="vpr_jax-bench-") as tmp:
         logdir = Path(tmp) / "paper"
-        cmd = [sys.executable, "-m", "experiments.sweep", "preset=paper", f"logdir={logdir}",
-               f"train.checkpoint_dir={Path(tmp) / 'checkpoints'}", *extra]  # fmt: skip
+        cmd = [
+            sys.executable,
+            "-m",
+            "experiments.sweep",
+            "preset=paper",
+            f"logdir={logdir}",
+            f"train.checkpoint_dir={Path(tmp) / 'checkpoints'}",
+            *extra,
+        ]
         print(f"  running: {' '.join(cmd[1:])}", flush=True)
         start = time.perf_counter()
-        proc = subprocess.run(cmd, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
-                              capture_output=True, text=True)  # fmt: skip
+        proc = subprocess.run(
+            cmd,
+            cwd=REPO,
+            env={**os.environ, "PYTHONPATH": str(REPO)},
+            capture_output=True,
+            text=True,
+        )
         wall = time.perf_counter() - start
         if proc.returncode != 0:
             print(proc.stderr[-3000:], file=sys.stderr)
@@ -158,22 +199,33 @@ def protocol_row(table: Table, extra: list[str]) -> None:
     label = "paper protocol" + (f" ({' '.join(extra)})" if extra else "")
     table.add(label, wall, PROTOCOL_GOAL_S, "goal: 10 min", 1.0)
     table.add("  the same vs the seed's Table 4", wall, SEED_TABLE_4_S, "seed, 14 h 50 min", 1.0)
-    print(f"  {len(rows)} cells, peak RSS {rss_gib:.2f} GiB; training seconds "
-          f"{ {m: round(s, 1) for m, s in by_method.items() if m in ('fae', 'cae')} }")
+    print(
+        f"  {len(rows)} cells, peak RSS {rss_gib:.2f} GiB; training seconds "
+        f"{ {m: round(s, 1) for m, s in by_method.items() if m in ('fae', 'cae')} }"
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3, help="warm runs per timing (median)")
-    parser.add_argument("--skip-protocol", action="store_true",
-                        help="leave out the paper protocol (the longest row)")
-    parser.add_argument("--protocol-args", default="",
-                        help="extra key=value overrides for the paper protocol, space-separated")
+    parser.add_argument(
+        "--skip-protocol",
+        action="store_true",
+        help="leave out the paper protocol (the longest row)",
+    )
+    parser.add_argument(
+        "--protocol-args",
+        default="",
+        help="extra key=value overrides for the paper protocol, space-separated",
+    )
     args = parser.parse_args()
     start = time.perf_counter()
     device = jax.devices()[0]
-    print(f"jax {jax.__version__} on {device.platform} ({device.device_kind}), "
-          f"{jax.device_count()} device(s), os.cpu_count() = {os.cpu_count()}", flush=True)
+    print(
+        f"jax {jax.__version__} on {device.platform} ({device.device_kind}), "
+        f"{jax.device_count()} device(s), os.cpu_count() = {os.cpu_count()}",
+        flush=True,
+    )
 
     train, db, query = seed_route()
     table = Table()

@@ -35,8 +35,9 @@ INCOMPLETE = ".incomplete"  # TensorBoard runs being written; moved into place w
 TopK = tuple[np.ndarray, np.ndarray]  # (scores, database indices), each (n_queries, K)
 
 
-def pair_data(route: Route, split: Split, db: str, query: str, database: str,
-              tolerance: int) -> PairData:
+def pair_data(
+    route: Route, split: Split, db: str, query: str, database: str, tolerance: int
+) -> PairData:
     """Images of one pair of an aligned route, ground truth ``|i - j| <= tolerance`` on
     frame ids; ``database="all"`` matches the queries against every frame of the database
     season (training places included), not only its test places."""
@@ -61,8 +62,9 @@ def pair_data(route: Route, split: Split, db: str, query: str, database: str,
     )
 
 
-def benchmark_pair(bench: Benchmark, route: Route | None, split: Split | None,
-                   cfg: SweepConfig) -> PairData:
+def benchmark_pair(
+    bench: Benchmark, route: Route | None, split: Split | None, cfg: SweepConfig
+) -> PairData:
     """A benchmark's one pair. Its queries are scored against its database with its own
     ground truth. The encoders fit on the training places of ``route`` (both of
     ``data.seasons``, aligned; they validate on its validation places), or, without one, on
@@ -73,25 +75,39 @@ def benchmark_pair(bench: Benchmark, route: Route | None, split: Split | None,
         a, b = route.seasons
         val_ids = route.frame_ids[split.val]
         return PairData(
-            db_season=db, query_season=query,
+            db_season=db,
+            query_season=query,
             train=np.concatenate([route.images[a][split.train], route.images[b][split.train]]),
-            db=bench.db, query=bench.query, db_ids=bench.db_ids, query_ids=bench.query_ids,
+            db=bench.db,
+            query=bench.query,
+            db_ids=bench.db_ids,
+            query_ids=bench.query_ids,
             truth=bench.truth,
-            val_db=route.images[a][split.val], val_query=route.images[b][split.val],
-            val_db_ids=val_ids, val_query_ids=val_ids,
+            val_db=route.images[a][split.val],
+            val_query=route.images[b][split.val],
+            val_db_ids=val_ids,
+            val_query_ids=val_ids,
             val_truth=Tolerance.of(val_ids, val_ids, cfg.tolerance),
-        )  # fmt: skip
+        )
     n_query = len(bench.query)
     n_val = min(max(1, round(cfg.split.val_fraction * n_query)), n_query - 1)
     test, val = np.arange(n_query - n_val), np.arange(n_query - n_val, n_query)
     return PairData(
-        db_season=db, query_season=query, train=bench.db,
-        db=bench.db, query=bench.query[test], db_ids=bench.db_ids,
-        query_ids=bench.query_ids[test], truth=bench.truth.take(test),
-        val_db=bench.db, val_query=bench.query[val], val_db_ids=bench.db_ids,
-        val_query_ids=bench.query_ids[val], val_truth=bench.truth.take(val),
+        db_season=db,
+        query_season=query,
+        train=bench.db,
+        db=bench.db,
+        query=bench.query[test],
+        db_ids=bench.db_ids,
+        query_ids=bench.query_ids[test],
+        truth=bench.truth.take(test),
+        val_db=bench.db,
+        val_query=bench.query[val],
+        val_db_ids=bench.db_ids,
+        val_query_ids=bench.query_ids[val],
+        val_truth=bench.truth.take(val),
         aligned_training=False,
-    )  # fmt: skip
+    )
 
 
 def _part(desc: Descriptors, pair: PairData, part: str):
@@ -101,8 +117,15 @@ def _part(desc: Descriptors, pair: PairData, part: str):
     return desc.val_query, desc.val_db, pair.val_query_ids, pair.val_db_ids
 
 
-def match(desc: Descriptors, pair: PairData, ds: int, counts: tuple[int, ...],
-          cfg: SweepConfig, mesh: Mesh | None, part: str = "test") -> list[TopK]:
+def match(
+    desc: Descriptors,
+    pair: PairData,
+    ds: int,
+    counts: tuple[int, ...],
+    cfg: SweepConfig,
+    mesh: Mesh | None,
+    part: str = "test",
+) -> list[TopK]:
     """The top-K matches of every query for each removed-PC count in ``counts`` (counts of
     ``desc``), in that order; ``part="val"``: of the validation queries against the
     validation database.
@@ -114,21 +137,30 @@ def match(desc: Descriptors, pair: PairData, ds: int, counts: tuple[int, ...],
     start_of = dict(zip(desc.removed_pcs, desc.starts, strict=True))
     query, db, query_ids, db_ids = _part(desc, pair, part)
     if ds == 1:
-        scores, idx = top_k_matches(query, db, TOP_K,
-                                    starts=tuple(start_of[k] for k in counts),
-                                    block_size=cfg.matching.block_size, mesh=mesh)  # fmt: skip
+        scores, idx = top_k_matches(
+            query,
+            db,
+            TOP_K,
+            starts=tuple(start_of[k] for k in counts),
+            block_size=cfg.matching.block_size,
+            mesh=mesh,
+        )
         return list(zip(scores, idx, strict=True))
     seq = cfg.sequence
     return [
         sequence_top_k_cosine(
-            query[:, start_of[k]:], db[:, start_of[k]:], ds,
-            query_ids=query_ids, db_ids=db_ids,
+            query[:, start_of[k] :],
+            db[:, start_of[k] :],
+            ds,
+            query_ids=query_ids,
+            db_ids=db_ids,
             vels=velocities(seq.v_min, seq.v_max, seq.v_step),
-            contrast_window=seq.contrast_window, uniqueness_window=seq.uniqueness_window,
+            contrast_window=seq.contrast_window,
+            uniqueness_window=seq.uniqueness_window,
             k=TOP_K,
         )
         for k in counts
-    ]  # fmt: skip
+    ]
 
 
 def run_name(pair: str, method: str, k: int, ds: int = 1, objective: str = "") -> str:
@@ -139,8 +171,17 @@ def run_name(pair: str, method: str, k: int, ds: int = 1, objective: str = "") -
     return name if ds == 1 else f"{name}_ds{ds:02d}"
 
 
-def _write_run(logdir: Path, name: str, cfg: SweepConfig, pair: PairData, desc: Descriptors,
-               k: int, ds: int, top: TopK, ev: Evaluation) -> None:
+def _write_run(
+    logdir: Path,
+    name: str,
+    cfg: SweepConfig,
+    pair: PairData,
+    desc: Descriptors,
+    k: int,
+    ds: int,
+    top: TopK,
+    ev: Evaluation,
+) -> None:
     """The cell's TensorBoard run, written aside and moved into place whole."""
     staging = logdir / INCOMPLETE / name
     shutil.rmtree(staging, ignore_errors=True)
@@ -148,20 +189,35 @@ def _write_run(logdir: Path, name: str, cfg: SweepConfig, pair: PairData, desc: 
     write_cell_run(
         staging,
         ev,
-        scalars={"timing/fit_seconds": desc.fit_seconds,
-                 "timing/encode_ms_per_image": desc.encode_ms_per_image,
-                 "fit/n_iter": desc.n_iter, "fit/converged": int(desc.converged)},
-        hparams={"season_pair": pair.name, "method": desc.method, "objective": desc.objective,
-                 "removed_pcs": float(k), "ds": float(ds)},
+        scalars={
+            "timing/fit_seconds": desc.fit_seconds,
+            "timing/encode_ms_per_image": desc.encode_ms_per_image,
+            "fit/n_iter": desc.n_iter,
+            "fit/converged": int(desc.converged),
+        },
+        hparams={
+            "season_pair": pair.name,
+            "method": desc.method,
+            "objective": desc.objective,
+            "removed_pcs": float(k),
+            "ds": float(ds),
+        },
         trial_id=name,
         n_thresholds=cfg.tb.pr_thresholds,
-        examples=match_examples(pair.query, pair.db, pair.truth, top[1][:, 0],
-                                cfg.tb.n_match_examples),
+        examples=match_examples(
+            pair.query, pair.db, pair.truth, top[1][:, 0], cfg.tb.n_match_examples
+        ),
         basis_images=desc.basis[desc.removed_pcs.index(k)],
         basis_tag=f"basis/{desc.basis_name}",
-    )  # fmt: skip
-    np.savez(staging / "curve.npz", precision=ev.pr_precision, recall=ev.pr_recall,
-             best_scores=ev.best_scores, best_correct=ev.best_correct, has_match=ev.has_match)
+    )
+    np.savez(
+        staging / "curve.npz",
+        precision=ev.pr_precision,
+        recall=ev.pr_recall,
+        best_scores=ev.best_scores,
+        best_correct=ev.best_correct,
+        has_match=ev.has_match,
+    )
     final = logdir / name
     final.parent.mkdir(parents=True, exist_ok=True)
     os.replace(staging, final)
@@ -172,8 +228,16 @@ def block_length(cfg: SweepConfig, ds: int) -> int:
     return max(cfg.bootstrap.block_length, ds)
 
 
-def save_cell(logdir: Path, cfg: SweepConfig, pair: PairData, desc: Descriptors, k: int,
-              ds: int, top: TopK, val_top: TopK) -> ResultRow:
+def save_cell(
+    logdir: Path,
+    cfg: SweepConfig,
+    pair: PairData,
+    desc: Descriptors,
+    k: int,
+    ds: int,
+    top: TopK,
+    val_top: TopK,
+) -> ResultRow:
     """Evaluate one cell's matches (``top``: the test queries', ``val_top``: the validation
     queries'), write its TensorBoard run, then its results.csv row (the row last: a run
     without a row is redone by a resumed sweep). Returns the row."""
@@ -181,23 +245,43 @@ def save_cell(logdir: Path, cfg: SweepConfig, pair: PairData, desc: Descriptors,
     shutil.rmtree(logdir / name, ignore_errors=True)  # left by a crash before its row
     ev = evaluate_matches(*top, pair.truth, pr_convention=cfg.pr_convention)
     val = evaluate_matches(*val_top, pair.val_truth, pr_convention=cfg.pr_convention)
-    ci = cell_intervals(ev.best_scores, ev.best_correct, ev.has_match,
-                        block_length=block_length(cfg, ds), resamples=cfg.bootstrap.resamples,
-                        seed=cfg.seed, pr_convention=cfg.pr_convention)  # fmt: skip
+    ci = cell_intervals(
+        ev.best_scores,
+        ev.best_correct,
+        ev.has_match,
+        block_length=block_length(cfg, ds),
+        resamples=cfg.bootstrap.resamples,
+        seed=cfg.seed,
+        pr_convention=cfg.pr_convention,
+    )
     _write_run(logdir, name, cfg, pair, desc, k, ds, top, ev)
     row = ResultRow(
-        season_pair=pair.name, db_season=pair.db_season, query_season=pair.query_season,
-        method=desc.method, objective=desc.objective, removed_pcs=k, ds=ds,
+        season_pair=pair.name,
+        db_season=pair.db_season,
+        query_season=pair.query_season,
+        method=desc.method,
+        objective=desc.objective,
+        removed_pcs=k,
+        ds=ds,
         n_train=len(pair.train),
         n_test=len(pair.query),
         tolerance=pair.truth.tolerance if isinstance(pair.truth, Tolerance) else -1,
-        ground_truth=pair.truth.describe(), **ev.scalars(),
-        recall_at_1_ci_low=ci.recall_at_1.low, recall_at_1_ci_high=ci.recall_at_1.high,
-        auc_pr_ci_low=ci.auc_pr.low, auc_pr_ci_high=ci.auc_pr.high,
-        val_recall_at_1=val.recall_at_1, val_auc_pr=val.auc_pr, selected=0,
-        fit_seconds=desc.fit_seconds, encode_ms_per_image=desc.encode_ms_per_image,
-        n_iter=desc.n_iter, converged=int(desc.converged), seed=cfg.seed, run=name,
-    )  # fmt: skip
+        ground_truth=pair.truth.describe(),
+        **ev.scalars(),
+        recall_at_1_ci_low=ci.recall_at_1.low,
+        recall_at_1_ci_high=ci.recall_at_1.high,
+        auc_pr_ci_low=ci.auc_pr.low,
+        auc_pr_ci_high=ci.auc_pr.high,
+        val_recall_at_1=val.recall_at_1,
+        val_auc_pr=val.auc_pr,
+        selected=0,
+        fit_seconds=desc.fit_seconds,
+        encode_ms_per_image=desc.encode_ms_per_image,
+        n_iter=desc.n_iter,
+        converged=int(desc.converged),
+        seed=cfg.seed,
+        run=name,
+    )
     append_results(logdir / "results.csv", [row])
     return row
 

@@ -54,9 +54,15 @@ def make_sheet(images: dict[str, np.ndarray], frame_ids: np.ndarray, scale: int)
         font_scale = 0.45
         (tw, th), _ = cv2.getTextSize(season, _FONT, font_scale, 1)
         cv2.putText(
-            sheet, season, (max(2, (LABEL_WIDTH - tw) // 2), y0 + (h * scale + th) // 2),
-            _FONT, font_scale, 0, 1, cv2.LINE_AA,
-        )  # fmt: skip
+            sheet,
+            season,
+            (max(2, (LABEL_WIDTH - tw) // 2), y0 + (h * scale + th) // 2),
+            _FONT,
+            font_scale,
+            0,
+            1,
+            cv2.LINE_AA,
+        )
     for col, fid in enumerate(frame_ids):
         text = str(int(fid))
         (tw, th), _ = cv2.getTextSize(text, _FONT, 0.35, 1)

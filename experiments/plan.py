@@ -34,24 +34,32 @@ class Plan(NamedTuple):
     def describe(self) -> str:
         """What the sweep runs on, for the run log's first line."""
         if self.benchmark is None:
-            return (f"{len(self.route)} frames per season, {len(self.split.train)} training, "
-                    f"{len(self.split.val)} validation and {len(self.split.test)} test places "
-                    "per season")
+            return (
+                f"{len(self.route)} frames per season, {len(self.split.train)} training, "
+                f"{len(self.split.val)} validation and {len(self.split.test)} test places "
+                "per season"
+            )
         b = self.benchmark
-        train = (f"training on {len(self.split.train)} places of each of "
-                 f"{', '.join(self.route.seasons)}" if self.route is not None else
-                 f"training on the {len(b.db):,} database images")
-        return (f"{b.source}: {len(b.db):,} database images, {len(b.query):,} queries, {train}, "
-                f"ground truth {b.truth.describe()}")
+        train = (
+            f"training on {len(self.split.train)} places of each of {', '.join(self.route.seasons)}"
+            if self.route is not None
+            else f"training on the {len(b.db):,} database images"
+        )
+        return (
+            f"{b.source}: {len(b.db):,} database images, {len(b.query):,} queries, {train}, "
+            f"ground truth {b.truth.describe()}"
+        )
 
 
 def resolve_benchmark_pair(spec: str, source: str) -> list[tuple[str, str]]:
     """A benchmark has one pair, its database and queries: ``all`` or that pair's name."""
     db, query = BENCHMARK_PAIRS[source]
     if spec.strip() not in ("all", f"{db}-{query}"):
-        raise UserError(f"season_pairs={spec} does not apply to data.source={source}: its one "
-                        f"pair is {db}-{query} (database {db}, queries {query}); use "
-                        "season_pairs=all")  # fmt: skip
+        raise UserError(
+            f"season_pairs={spec} does not apply to data.source={source}: its one "
+            f"pair is {db}-{query} (database {db}, queries {query}); use "
+            "season_pairs=all"
+        )
     return [(db, query)]
 
 
@@ -65,15 +73,21 @@ def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
     for name in (p.strip() for p in spec.split(",") if p.strip()):
         db, sep, query = name.partition("-")
         if not sep or not db or not query or "-" in query:
-            raise UserError(f"season pair {name!r} is not db-query: write e.g. "
-                            "season_pairs=summer-fall,spring-fall or season_pairs=all")
+            raise UserError(
+                f"season pair {name!r} is not db-query: write e.g. "
+                "season_pairs=summer-fall,spring-fall or season_pairs=all"
+            )
         if db == query:
-            raise UserError(f"season pair {name!r} names {db} twice: a pair needs two "
-                            "different seasons, e.g. summer-fall")
+            raise UserError(
+                f"season pair {name!r} names {db} twice: a pair needs two "
+                "different seasons, e.g. summer-fall"
+            )
         unknown = [s for s in (db, query) if s not in seasons]
         if unknown:
-            raise UserError(f"season pair {name!r} uses {', '.join(unknown)}, not in "
-                            f"data.seasons={list(seasons)}: add it there or fix the pair")
+            raise UserError(
+                f"season pair {name!r} uses {', '.join(unknown)}, not in "
+                f"data.seasons={list(seasons)}: add it there or fix the pair"
+            )
         if (db, query) not in pairs:
             pairs.append((db, query))
     if not pairs:
@@ -86,14 +100,18 @@ def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int, log: 
     pair's ``n_train_images`` (both seasons), the season differences of its aligned places."""
     limit = min(n_train_images - 1, n_pixels)
     if "lda" in cfg.methods and cfg.lda.n_components > limit:
-        log(f"note: lda.n_components={cfg.lda.n_components} exceeds the {limit} principal "
-            f"components of {n_train_images} training images: lda whitens in all {limit}")
+        log(
+            f"note: lda.n_components={cfg.lda.n_components} exceeds the {limit} principal "
+            f"components of {n_train_images} training images: lda whitens in all {limit}"
+        )
     if not SWEEPS_REMOVED_PCS & set(cfg.methods):
         return
     if max(cfg.removed_pcs) >= limit:
-        raise UserError(f"removed_pcs={list(cfg.removed_pcs)} leaves no component: PCA of "
-                        f"{n_train_images} training images has {limit} components, so use "
-                        f"counts below {limit}")
+        raise UserError(
+            f"removed_pcs={list(cfg.removed_pcs)} leaves no component: PCA of "
+            f"{n_train_images} training images has {limit} components, so use "
+            f"counts below {limit}"
+        )
     n_ica = cfg.ica.n_components
     if "ica" in cfg.methods and n_ica != "all" and max(cfg.removed_pcs) + n_ica > limit:
         raise UserError(
@@ -104,10 +122,12 @@ def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int, log: 
         )
     most = min(n_train_images // 2, n_pixels)
     if "diff_pca" in cfg.methods and max(cfg.removed_pcs) > most:
-        raise UserError(f"removed_pcs up to {max(cfg.removed_pcs)} for diff_pca, but the "
-                        f"season differences of {n_train_images // 2} aligned training places "
-                        f"span at most {most} directions: use counts up to {most}, or leave "
-                        "diff_pca out of methods")
+        raise UserError(
+            f"removed_pcs up to {max(cfg.removed_pcs)} for diff_pca, but the "
+            f"season differences of {n_train_images // 2} aligned training places "
+            f"span at most {most} directions: use counts up to {most}, or leave "
+            "diff_pca out of methods"
+        )
 
 
 def make_plan(cfg: SweepConfig, log: Log) -> Plan:
@@ -121,8 +141,10 @@ def make_plan(cfg: SweepConfig, log: Log) -> Plan:
         pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
     prepare_logdir(logdir, cfg)
     if not cfg.sequence.enabled and cfg.sequence.ds != SequenceConfig().ds:
-        log(f"note: sequence.ds={list(cfg.sequence.ds)} is ignored while sequence.enabled="
-            "false: single images only (add sequence.enabled=true for the ds axis)")
+        log(
+            f"note: sequence.ds={list(cfg.sequence.ds)} is ignored while sequence.enabled="
+            "false: single images only (add sequence.enabled=true for the ds axis)"
+        )
     prep = (cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded, log)
     data = load_data(cfg.data, cfg.seed, log)
     if not benchmark:
@@ -132,15 +154,19 @@ def make_plan(cfg: SweepConfig, log: Log) -> Plan:
         return Plan(cfg, logdir, pairs, route, split)
     bench = preprocess_benchmark(data, *prep)
     if len(bench.query) < 2:
-        raise UserError(f"data.source={cfg.data.source} has {len(bench.query)} query image(s): "
-                        "validation and test need at least two")  # fmt: skip
+        raise UserError(
+            f"data.source={cfg.data.source} has {len(bench.query)} query image(s): "
+            "validation and test need at least two"
+        )
     route = load_train_route(cfg.data, cfg.seed, log)
     split = None
     if route is None:
-        log(f"note: data.source={cfg.data.source} has no aligned training places: the "
+        log(
+            f"note: data.source={cfg.data.source} has no aligned training places: the "
             f"encoders fit on the database images, the last split.val_fraction="
             f"{cfg.split.val_fraction} of the queries validate; methods and objectives that "
-            "learn from the alignment (diff_pca, lda, cross_season) need data.train_source")
+            "learn from the alignment (diff_pca, lda, cross_season) need data.train_source"
+        )
         n_train = len(bench.db)
     else:
         route = preprocess_route(route, *prep)

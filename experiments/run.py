@@ -90,14 +90,17 @@ def start_devices(cfg: MeshConfig, log: Log) -> Mesh | None:
         raise UserError(str(err)) from None
     if mesh is not None:
         devices = mesh.devices.flat
-        log(f"mesh: {mesh_size(mesh)} {devices[0].platform} devices in "
+        log(
+            f"mesh: {mesh_size(mesh)} {devices[0].platform} devices in "
             f"{jax.process_count()} process(es); PCA samples, matching database and "
-            "training batches are split over them")  # fmt: skip
+            "training batches are split over them"
+        )
     return mesh
 
 
-def method_context(cfg: SweepConfig, logdir: Path, out: Path, pair: str, log: Log,
-                   mesh: Mesh | None) -> MethodContext:
+def method_context(
+    cfg: SweepConfig, logdir: Path, out: Path, pair: str, log: Log, mesh: Mesh | None
+) -> MethodContext:
     """Checkpoints under <train.checkpoint_dir>/<logdir name>/<pair>/<method>/; a training
     run per auto-encoder next to its cell's run (under ``out``, where this process writes)."""
     ident = identity(cfg)
@@ -115,13 +118,17 @@ def write_summaries(logdir: Path, cfg: SweepConfig) -> None:
     if not rows:
         return
     curve = _curve_reader(logdir)
-    atomic_write_text(logdir / "results.md",
-                      markdown_table(rows, differences_to_pca(rows, curve, cfg)))
+    atomic_write_text(
+        logdir / "results.md", markdown_table(rows, differences_to_pca(rows, curve, cfg))
+    )
     figures = logdir / "figures"
     figures.mkdir(exist_ok=True)
     write_tb_summaries(logdir, rows, curve, cfg)
-    pr_curves_figure(rows, lambda row: (curve(row.run)["precision"], curve(row.run)["recall"]),
-                     figures / "pr_curves.png")
+    pr_curves_figure(
+        rows,
+        lambda row: (curve(row.run)["precision"], curve(row.run)["recall"]),
+        figures / "pr_curves.png",
+    )
     correct_matches_figure(rows, figures / "correct_matches.png")
     if len({r.ds for r in rows}) > 1:
         recall_vs_ds_figure(rows, figures / "recall_vs_ds.png")
@@ -159,21 +166,22 @@ def write_tb_summaries(logdir: Path, rows: list[ResultRow], curve, cfg: SweepCon
         setting = f"k={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else ""
         scalars = {name: getattr(row, name) for name in SCALAR_NAMES}
         by_pair.setdefault(row.season_pair, []).append(
-            SummaryCell(label, setting, scalars, *per_query))
+            SummaryCell(label, setting, scalars, *per_query)
+        )
     for pair, cells in by_pair.items():
         staging = logdir / INCOMPLETE / SUMMARY / pair
         shutil.rmtree(staging, ignore_errors=True)
         staging.mkdir(parents=True)
-        write_pair_summary(staging, cells, pr_convention=cfg.pr_convention,
-                           n_thresholds=cfg.tb.pr_thresholds)  # fmt: skip
+        write_pair_summary(
+            staging, cells, pr_convention=cfg.pr_convention, n_thresholds=cfg.tb.pr_thresholds
+        )
         final = logdir / SUMMARY / pair
         shutil.rmtree(final, ignore_errors=True)
         final.parent.mkdir(parents=True, exist_ok=True)
         os.replace(staging, final)
 
 
-def differences_to_pca(rows: list[ResultRow], curve, cfg: SweepConfig
-                       ) -> dict[str, Difference]:
+def differences_to_pca(rows: list[ResultRow], curve, cfg: SweepConfig) -> dict[str, Difference]:
     """Per selected row (by run), recall@1 minus its pair's selected PCA row's, paired on
     the same queries (``vpr_jax.bootstrap``; ``curve``: ``_curve_reader``); rows whose runs
     predate the per-query record in curve.npz are left out."""
@@ -191,8 +199,12 @@ def differences_to_pca(rows: list[ResultRow], curve, cfg: SweepConfig
         if mine is None or theirs is None or mine.shape != theirs.shape:
             continue
         out[row.run] = paired_recall_difference(
-            mine, theirs, block_length=block_length(cfg, row.ds),
-            resamples=cfg.bootstrap.resamples, seed=cfg.seed)  # fmt: skip
+            mine,
+            theirs,
+            block_length=block_length(cfg, row.ds),
+            resamples=cfg.bootstrap.resamples,
+            seed=cfg.seed,
+        )
     return out
 
 
@@ -203,8 +215,9 @@ def run_cells(plan: Plan, log: RunLog) -> Path:
     mesh = start_devices(cfg.mesh, log)
     trained = [o for m in AUTOENCODERS & set(cfg.methods) for o in objectives_of(m, cfg)]
     if trained:  # before anything is written, not mid-sweep
-        check_batch_splits(cfg.train.batch_size, mesh,
-                           max(objectives.examples_per_image(o) for o in trained))
+        check_batch_splits(
+            cfg.train.batch_size, mesh, max(objectives.examples_per_image(o) for o in trained)
+        )
     # With several processes all compute, process 0 writes the logdir; the others read it
     # (shared file system) to agree on what is left, and write to a folder they delete.
     primary = jax.process_index() == 0
@@ -214,8 +227,10 @@ def run_cells(plan: Plan, log: RunLog) -> Path:
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        raise UserError(f"logdir {out} cannot be made ({err.strerror}): set logdir=PATH to a "
-                        "folder you can write") from None
+        raise UserError(
+            f"logdir {out} cannot be made ({err.strerror}): set logdir=PATH to a "
+            "folder you can write"
+        ) from None
     try:
         return _run(plan, log, out, mesh)
     finally:
@@ -227,10 +242,14 @@ def _cells_to_do(plan: Plan, log: Log) -> tuple[list[CellKey], set[CellKey]]:
     """Every cell of the sweep, in order, and those not yet in results.csv."""
     cfg = plan.cfg
     done = {cell_key(r) for r in read_results(plan.logdir / "results.csv")}
-    cells = [(f"{a}-{b}", m, o, k, ds) for a, b in plan.pairs for m in cfg.methods
-             for o in objectives_of(m, cfg)
-             for k in (cfg.removed_pcs if m in SWEEPS_REMOVED_PCS else (0,))
-             for ds in cfg.sequence_lengths]  # fmt: skip
+    cells = [
+        (f"{a}-{b}", m, o, k, ds)
+        for a, b in plan.pairs
+        for m in cfg.methods
+        for o in objectives_of(m, cfg)
+        for k in (cfg.removed_pcs if m in SWEEPS_REMOVED_PCS else (0,))
+        for ds in cfg.sequence_lengths
+    ]
     todo = {c for c in cells if c not in done}
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} cells already in results.csv")
@@ -243,16 +262,22 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
     atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(to_dict(cfg)))
     log.open(out / "sweep.log")
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
-    log(f"sweep: {plan.describe()}, pairs {[f'{a}-{b}' for a, b in plan.pairs]}, "
-        f"methods {list(cfg.methods)}, logdir {logdir}")
+    log(
+        f"sweep: {plan.describe()}, pairs {[f'{a}-{b}' for a, b in plan.pairs]}, "
+        f"methods {list(cfg.methods)}, logdir {logdir}"
+    )
     cells, todo = _cells_to_do(plan, log)
     write_experiment_config(
         out,
-        {"season_pair": [f"{a}-{b}" for a, b in plan.pairs], "method": list(cfg.methods),
-         "objective": [c[2] for c in cells], "removed_pcs": [float(c[3]) for c in cells],
-         "ds": [float(c[4]) for c in cells]},
+        {
+            "season_pair": [f"{a}-{b}" for a, b in plan.pairs],
+            "method": list(cfg.methods),
+            "objective": [c[2] for c in cells],
+            "removed_pcs": [float(c[3]) for c in cells],
+            "ds": [float(c[4]) for c in cells],
+        },
         [f"metrics/{k}" for k in SCALAR_NAMES] + [f"timing/{k}" for k in TIMING_NAMES],
-    )  # fmt: skip
+    )
     finished = len(cells) - len(todo)
     with Bar(len(todo), "sweep cells") as bar:
         for db, query in plan.pairs:
@@ -269,9 +294,11 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                 if method in USES_PCA_FIT and ctx.pca_fit is None:  # one fit per pair
                     ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
                 todo_ctx = ctx._replace(
-                    objectives=tuple(o for o in objectives_of(method, cfg)
-                                     if o in {o for o, _ in left}),
-                    removed_pcs=tuple(sorted({k for _, k in left})))  # fmt: skip
+                    objectives=tuple(
+                        o for o in objectives_of(method, cfg) if o in {o for o, _ in left}
+                    ),
+                    removed_pcs=tuple(sorted({k for _, k in left})),
+                )
                 for desc in METHODS[method](data, cfg, todo_ctx):
                     for row, warning in _save_descriptors(out, cfg, data, desc, todo, mesh):
                         finished += 1
@@ -279,9 +306,11 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                         log_cell(log, f"[{finished}/{len(cells)}]", row, warning)
     write_summaries(out, cfg)
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)  # empty once every cell moved out
-    log(f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; compare the methods "
+    log(
+        f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; compare the methods "
         f"with: tensorboard --logdir {logdir / SUMMARY} (every cell: tensorboard --logdir "
-        f"{logdir})")
+        f"{logdir})"
+    )
     return logdir
 
 
@@ -293,9 +322,14 @@ def _pair(plan: Plan, db: str, query: str) -> PairData:
     return pair_data(plan.route, plan.split, db, query, cfg.split.database, cfg.tolerance)
 
 
-def _save_descriptors(out: Path, cfg: SweepConfig, data: PairData, desc: Descriptors,
-                      todo: set[CellKey], mesh: Mesh | None
-                      ) -> Iterator[tuple[ResultRow, str | None]]:
+def _save_descriptors(
+    out: Path,
+    cfg: SweepConfig,
+    data: PairData,
+    desc: Descriptors,
+    todo: set[CellKey],
+    mesh: Mesh | None,
+) -> Iterator[tuple[ResultRow, str | None]]:
     """Match, evaluate and save every cell of these descriptors still to do, count by count
     and ds by ds; yields (row, the descriptors' warning with their first cell only)."""
     single = {}  # per part, ds = 1 matches of every count, from one pass
@@ -305,16 +339,21 @@ def _save_descriptors(out: Path, cfg: SweepConfig, data: PairData, desc: Descrip
         if ds > 1:
             return match(desc, data, ds, (k,), cfg, mesh, part)[0]
         if part not in single:
-            single[part] = dict(zip(desc.removed_pcs,
-                                    match(desc, data, 1, desc.removed_pcs, cfg, mesh, part),
-                                    strict=True))  # fmt: skip
+            single[part] = dict(
+                zip(
+                    desc.removed_pcs,
+                    match(desc, data, 1, desc.removed_pcs, cfg, mesh, part),
+                    strict=True,
+                )
+            )
         return single[part][k]
 
     for k in desc.removed_pcs:
         for ds in cfg.sequence_lengths:
             if (data.name, desc.method, desc.objective, k, ds) not in todo:
                 continue
-            row = save_cell(out, cfg, data, desc, k, ds, matches(k, ds, "test"),
-                            matches(k, ds, "val"))  # fmt: skip
+            row = save_cell(
+                out, cfg, data, desc, k, ds, matches(k, ds, "test"), matches(k, ds, "val")
+            )
             yield row, warning
             warning = None

@@ -56,10 +56,13 @@ def interrupted_line(argv: list[str], cfg: SweepConfig | None) -> str:
 
 
 # Faults of the disk, not of the input: the run stops, everything finished stays saved.
-WRITE_FAULTS = {errno.ENOSPC: "free space", errno.EDQUOT: "free space within your quota",
-                errno.EFBIG: "free space or raise the file-size limit (ulimit -f)",
-                errno.EROFS: "make the logdir writable or set logdir=PATH",
-                errno.EIO: "check the disk"}  # fmt: skip
+WRITE_FAULTS = {
+    errno.ENOSPC: "free space",
+    errno.EDQUOT: "free space within your quota",
+    errno.EFBIG: "free space or raise the file-size limit (ulimit -f)",
+    errno.EROFS: "make the logdir writable or set logdir=PATH",
+    errno.EIO: "check the disk",
+}
 
 
 def _saved_cells(cfg: SweepConfig | None) -> tuple[int, Path | None]:
@@ -80,8 +83,10 @@ def write_fault_line(err: OSError, argv: list[str], cfg: SweepConfig | None) -> 
     n, results = _saved_cells(cfg)
     saved = f"{n} finished cell(s) are saved in {results}" if n else "no cell had finished"
     command = shlex.join(["python", "-m", "experiments.sweep", *argv])
-    return (f"cannot write {where}: {err.strerror} ({errno.errorcode[err.errno]}): "
-            f"{WRITE_FAULTS[err.errno]}, then rerun the same command: {saved}; {command}")
+    return (
+        f"cannot write {where}: {err.strerror} ({errno.errorcode[err.errno]}): "
+        f"{WRITE_FAULTS[err.errno]}, then rerun the same command: {saved}; {command}"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

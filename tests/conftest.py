@@ -13,9 +13,18 @@ REPO = Path(__file__).resolve().parent.parent
 
 # A small but complete sweep: the three default pairs, every method, three removed-PC counts
 # and tiny auto-encoders trained for two epochs.
-SMALL = ["data.n_frames=700", "split.n_train=300", "split.n_test=120", "split.gap=20",
-         "removed_pcs=[0,5,20]", "fae.hidden=32", "cae.channels=[4,8]", "cae.code_channels=2",
-         "train.epochs=2", "fae.epochs=2"]
+SMALL = [
+    "data.n_frames=700",
+    "split.n_train=300",
+    "split.n_test=120",
+    "split.gap=20",
+    "removed_pcs=[0,5,20]",
+    "fae.hidden=32",
+    "cae.channels=[4,8]",
+    "cae.code_channels=2",
+    "train.epochs=2",
+    "fae.epochs=2",
+]
 
 
 def run_cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -29,8 +38,13 @@ def run_cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
     if logdirs and not any(a.startswith("train.checkpoint_dir=") for a in args):
         args = (*args, f"train.checkpoint_dir={Path(logdirs[-1]).parent / 'checkpoints'}")
     env = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
-    return subprocess.run([sys.executable, "-m", "experiments.sweep", *args], cwd=REPO,
-                          env=env, capture_output=True, text=True)
+    return subprocess.run(
+        [sys.executable, "-m", "experiments.sweep", *args],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
 
 
 @pytest.fixture(scope="session")
@@ -49,8 +63,9 @@ def numpy_cosine(q, d):
     return q @ d.T
 
 
-def write_release(root: Path, frames: Mapping[str, Iterable[np.ndarray]],
-                  ids: Iterable[int] | None = None) -> Path:
+def write_release(
+    root: Path, frames: Mapping[str, Iterable[np.ndarray]], ids: Iterable[int] | None = None
+) -> Path:
     """Nordland's 64x32 release layout, ``ROOT/<season>/images-%05d.png``, from each season's
     uint8 images, numbered ``ids`` (default 1, 2, ...). Returns ``root``."""
     for season, images in frames.items():
@@ -83,5 +98,7 @@ def tail_validation(images, n_groups: int, fraction: float):
     held out, as the sweep's split holds out the end of each season's training stretch."""
     groups = np.split(np.asarray(images), n_groups)
     n_val = max(1, int(round(len(groups[0]) * fraction)))
-    return (np.concatenate([g[:-n_val] for g in groups]),
-            np.concatenate([g[-n_val:] for g in groups]))
+    return (
+        np.concatenate([g[:-n_val] for g in groups]),
+        np.concatenate([g[-n_val:] for g in groups]),
+    )

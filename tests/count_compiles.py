@@ -39,8 +39,15 @@ def main() -> None:
     with jax.log_compiles(True):
         for i, overrides in enumerate(sweeps):
             recorder.seen = []
-            run_sweep(parse_config([*overrides.split(), f"logdir={logdir}/{i}",
-                                    f"train.checkpoint_dir={logdir}/checkpoints"]))  # fmt: skip
+            run_sweep(
+                parse_config(
+                    [
+                        *overrides.split(),
+                        f"logdir={logdir}/{i}",
+                        f"train.checkpoint_dir={logdir}/checkpoints",
+                    ]
+                )
+            )
             out.append(recorder.seen)
     print(json.dumps(out))
 

@@ -31,8 +31,15 @@ def main() -> None:
     scores, indices = top_k_matches(query, db, 10, block_size=16, mesh=mesh)
     scores, indices = scores[0], indices[0]  # the one suffix start: all features
     if jax.process_index() == 0:
-        np.savez(out, scores=scores, indices=indices, query=query, db=db,
-                 devices=sharding.mesh_size(mesh), processes=jax.process_count())
+        np.savez(
+            out,
+            scores=scores,
+            indices=indices,
+            query=query,
+            db=db,
+            devices=sharding.mesh_size(mesh),
+            processes=jax.process_count(),
+        )
     jax.distributed.shutdown()
 
 

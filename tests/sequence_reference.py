@@ -32,9 +32,17 @@ def enhance(diff: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-def sequence_top_k_numpy(similarity, ds=10, *, query_ids=None, db_ids=None,
-                         vels=DEFAULT_VELOCITIES, contrast_window=10, uniqueness_window=10,
-                         k=10):
+def sequence_top_k_numpy(
+    similarity,
+    ds=10,
+    *,
+    query_ids=None,
+    db_ids=None,
+    vels=DEFAULT_VELOCITIES,
+    contrast_window=10,
+    uniqueness_window=10,
+    k=10,
+):
     sim = np.asarray(similarity, np.float64)
     nq, n_db = sim.shape
     k = min(k, n_db)

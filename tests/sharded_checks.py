@@ -73,12 +73,18 @@ def main() -> None:
         split = jax.jit(grad, static_argnums=2)(
             sharding.replicate(params, mesh), sharding.replicate(images[:16], mesh), True
         )
-        rel = jax.tree.map(lambda u, v: float(np.abs(np.asarray(u) - np.asarray(v)).max()
-                                              / (np.abs(np.asarray(u)).max() + 1e-30)), one, split)
+        rel = jax.tree.map(
+            lambda u, v: float(
+                np.abs(np.asarray(u) - np.asarray(v)).max() / (np.abs(np.asarray(u)).max() + 1e-30)
+            ),
+            one,
+            split,
+        )
         out[f"{name}_grad_rel"] = max(jax.tree.leaves(rel))
         a = fit_autoencoder(spec, images[:160], images[160:], jax.random.key(0), settings)
-        b = fit_autoencoder(spec, images[:160], images[160:], jax.random.key(0), settings,
-                            mesh=mesh)
+        b = fit_autoencoder(
+            spec, images[:160], images[160:], jax.random.key(0), settings, mesh=mesh
+        )
         out[f"{name}_params"] = max_diff(a.params, b.params)
         out[f"{name}_val_loss"] = [a.best_val_loss, b.best_val_loss]
         out[f"{name}_param_devices"] = len(jax.tree.leaves(b.params)[0].sharding.device_set)

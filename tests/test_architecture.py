@@ -1,6 +1,8 @@
 """The code's shape: no module of vpr_jax/ or experiments/ imports itself back in a cycle."""
 
 import ast
+import subprocess
+import sys
 
 from tests.conftest import REPO
 
@@ -25,8 +27,12 @@ def import_graph() -> dict[str, set[str]]:
             if isinstance(node, ast.Import):
                 found |= {a.name for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
-                found |= {f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in modules
-                          else node.module for a in node.names}  # fmt: skip
+                found |= {
+                    f"{node.module}.{a.name}"
+                    if f"{node.module}.{a.name}" in modules
+                    else node.module
+                    for a in node.names
+                }
         graph[name] = {m for m in found if m in modules and m != name}
     return graph
 
@@ -58,3 +64,17 @@ def test_methods_make_descriptors_and_never_match():
     tree = _modules()["vpr_jax.methods"]
     names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
     assert not {"top_k_matches", "sequence_top_k_cosine", "evaluate_top_k"} & names
+
+
+def _ruff(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "ruff", *args], cwd=REPO, capture_output=True, text=True, timeout=60
+    )
+
+
+def test_ruff_owns_the_layout_and_the_lint():
+    """One formatter lays out every file (``ruff format``); ``ruff check`` finds nothing."""
+    fmt = _ruff("format", "--check", ".")
+    assert fmt.returncode == 0, f"run `ruff format .`:\n{fmt.stdout}{fmt.stderr}"
+    lint = _ruff("check", ".")
+    assert lint.returncode == 0, f"run `ruff check .`:\n{lint.stdout}{lint.stderr}"

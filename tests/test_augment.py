@@ -35,7 +35,7 @@ def np_shift(image, dy, dx):
     p, q = abs(dy), abs(dx)
     pad = [(p, p), (q, q)] + [(0, 0)] * (image.ndim - 2)
     padded = np.pad(image, pad, mode="edge")
-    return padded[p - dy:p - dy + h, q - dx:q - dx + w]
+    return padded[p - dy : p - dy + h, q - dx : q - dx + w]
 
 
 @functools.cache
@@ -51,8 +51,14 @@ def _candidates(h, w, flips, dys, dxs):
     return table
 
 
-def identify(out, h=H, w=W, flips=(False, True), dys=range(-H // 2, H // 2 + 1),
-             dxs=range(-W // 2, W // 2 + 1)):
+def identify(
+    out,
+    h=H,
+    w=W,
+    flips=(False, True),
+    dys=range(-H // 2, H // 2 + 1),
+    dxs=range(-W // 2, W // 2 + 1),
+):
     """The (flip, dy, dx) that turn ``gradient(h, w)`` into ``out`` (searching wider than
     allowed, so an out-of-range shift is found and reported rather than missed), or None."""
     table = _candidates(h, w, tuple(flips), tuple(dys), tuple(dxs))
@@ -80,8 +86,9 @@ def test_channel_axis_changes_nothing_but_shape(batch):
     assert not np.array_equal(np.asarray(flat), batch)
 
 
-@pytest.mark.parametrize("dy,dx", [(0, 0), (3, 0), (0, -5), (-4, 7), (6, -12), (-6, 12),
-                                   (1, 1), (-31, 40), (35, -70)])
+@pytest.mark.parametrize(
+    "dy,dx", [(0, 0), (3, 0), (0, -5), (-4, 7), (6, -12), (-6, 12), (1, 1), (-31, 40), (35, -70)]
+)
 def test_shift_image_matches_numpy(dy, dx):
     image = gradient()
     np.testing.assert_array_equal(np.asarray(shift_image(image, dy, dx)), np_shift(image, dy, dx))
@@ -182,8 +189,9 @@ def test_values_stay_within_input_range(batch):
 
 def test_augment_one_single_image_and_other_sizes():
     image = gradient(7, 11)
-    out = np.asarray(jax.jit(functools.partial(augment_one, cfg=AugmentConfig()))(
-        jax.random.PRNGKey(11), image))
+    out = np.asarray(
+        jax.jit(functools.partial(augment_one, cfg=AugmentConfig()))(jax.random.PRNGKey(11), image)
+    )
     found = identify(out, 7, 11, dys=range(-3, 4), dxs=range(-5, 6))
     assert found is not None
     _, dy, dx = found

@@ -20,13 +20,17 @@ from vpr_jax.config import parse_config, to_dict
 def _snapshot(folder: Path) -> dict:
     if not folder.exists():
         return {}
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def _release(root: Path, seasons=("spring", "summer", "fall"), ids=range(1, 5), shape=(32, 64)):
-    return write_release(root, {s: [np.full(shape, 40 + i, np.uint8) for i in ids]
-                                for s in seasons}, ids)  # fmt: skip
+    return write_release(
+        root, {s: [np.full(shape, 40 + i, np.uint8) for i in ids] for s in seasons}, ids
+    )
 
 
 def _assert_refused(proc, *words):
@@ -75,8 +79,11 @@ def _images(root):
 def _videos(root, seasons=("spring", "summer", "fall"), n_frames=50):
     for season in seasons:
         write_video(root / f"{season}.avi", 25.0, n_frames)
-    return ["data.source=nordland_videos", f"data.root={root}",
-            f"data.cache_dir={root.parent / 'cache'}"]
+    return [
+        "data.source=nordland_videos",
+        f"data.root={root}",
+        f"data.cache_dir={root.parent / 'cache'}",
+    ]
 
 
 def _unopenable_video(root):
@@ -104,22 +111,29 @@ def _poisoned_cache(value):
         frames[1, 5, 7] = value
         np.savez(cache, frames=frames, frame_ids=ids)
         return args
+
     return make
 
 
 DATA_CASES = {
     "missing root": (lambda root: _images(root / "absent"), ["does not exist", "data.root"]),
     "empty root": (_images, ["data.root"]),
-    "missing season": (lambda root: _images(_release(root, seasons=("spring", "summer"))),
-                       ["fall"]),
+    "missing season": (
+        lambda root: _images(_release(root, seasons=("spring", "summer"))),
+        ["fall"],
+    ),
     "corrupt image": (_corrupt, ["images-00002.png", "re-copy"]),
     "zero-byte image": (_zero_bytes, ["images-00004.png", "empty (0 bytes)"]),
     "wrong size": (_wrong_size, ["images-00003.png", "data.source=folders"]),
     "no common frames": (_no_common, ["share no frame"]),
-    "frame list naming absent frames": (_absent_in_list, ["frames.txt", "first: 7",
-                                                          "remove them from the list"]),
-    "video that cannot be opened": (_unopenable_video, ["summer.mp4", "cannot be opened",
-                                                        "re-encode"]),
+    "frame list naming absent frames": (
+        _absent_in_list,
+        ["frames.txt", "first: 7", "remove them from the list"],
+    ),
+    "video that cannot be opened": (
+        _unopenable_video,
+        ["summer.mp4", "cannot be opened", "re-encode"],
+    ),
     "video shorter than one second": (_short_video, ["fall.avi", "lasts only 0.40 s"]),
     "NaN in the video cache": (_poisoned_cache(np.nan), ["NaN or Inf", "delete it"]),
     "Inf in the video cache": (_poisoned_cache(np.inf), ["NaN or Inf", "delete it"]),
@@ -142,14 +156,18 @@ def test_bad_data(case, tmp_path):
 
 CONFIG_CASES = {
     "unknown key": (["method=raw"], ["method"]),
-    "frame range for the built-in route": (["data.frame_range=[1,50]"],
-                                           ["data.frame_range applies to Nordland sources"]),
-    "a frame range that is not [first, last]": (["data.source=nordland_images",
-                                                 "data.root=/nowhere", "data.frame_range=[9,2]"],
-                                                ["data.frame_range=[9, 2] is not [first, last]"]),
-    "a key that moved": (["train.val_fraction=0.2"],
-                         ["train.val_fraction moved to split.val_fraction",
-                          "split.val_fraction=0.2"]),
+    "frame range for the built-in route": (
+        ["data.frame_range=[1,50]"],
+        ["data.frame_range applies to Nordland sources"],
+    ),
+    "a frame range that is not [first, last]": (
+        ["data.source=nordland_images", "data.root=/nowhere", "data.frame_range=[9,2]"],
+        ["data.frame_range=[9, 2] is not [first, last]"],
+    ),
+    "a key that moved": (
+        ["train.val_fraction=0.2"],
+        ["train.val_fraction moved to split.val_fraction", "split.val_fraction=0.2"],
+    ),
     "wrong type": (["tolerance=two"], ["tolerance"]),
     "bad pair name": (["season_pairs=summer_fall"], ["summer_fall", "season_pairs"]),
     "pair of one season": (["season_pairs=fall-fall"], ["fall-fall"]),
@@ -162,14 +180,20 @@ CONFIG_CASES = {
     ),
     "ICs not a count": (["ica.n_components=many"], ["ica.n_components=many", "all"]),
     "more change directions than aligned places": (
-        [*SMALL, "removed_pcs=[0,300]"], ["diff_pca", "250 aligned training places", "up to 250"]),
+        [*SMALL, "removed_pcs=[0,300]"],
+        ["diff_pca", "250 aligned training places", "up to 250"],
+    ),
     "LDA shrinkage outside [0, 1]": (["lda.shrinkage=1.5"], ["lda.shrinkage=1.5", "[0, 1]"]),
     "unknown ICA contrast": (["ica.fun=tanh"], ["ica.fun=tanh", "logcosh"]),
     "sequence of no image": (["sequence.ds=[0,10]"], ["sequence.ds=[0, 10]", "ds=1"]),
-    "velocities backwards": (["sequence.v_min=1.2", "sequence.v_max=0.8"],
-                             ["v_min=1.2", "v_max=0.8"]),
-    "patch that does not tile": (["preprocess=patchnorm", "patchnorm.size=5"],
-                                 ["patchnorm.size=5", "2, 4, 8, 16, 32"]),
+    "velocities backwards": (
+        ["sequence.v_min=1.2", "sequence.v_max=0.8"],
+        ["v_min=1.2", "v_max=0.8"],
+    ),
+    "patch that does not tile": (
+        ["preprocess=patchnorm", "patchnorm.size=5"],
+        ["patchnorm.size=5", "2, 4, 8, 16, 32"],
+    ),
     "unknown preprocessing": (["preprocess=clahe"], ["preprocess=clahe", "patchnorm"]),
 }
 
@@ -208,7 +232,8 @@ LOGDIR_CASES = {
         ["results.csv is not a results table", "lacks columns", "move it away"],
     ),
     "config.yaml that is not a config": (
-        {"config.yaml": "methods: [raw\n"}, ["config.yaml is not a sweep config"]
+        {"config.yaml": "methods: [raw\n"},
+        ["config.yaml is not a sweep config"],
     ),
 }
 
@@ -230,7 +255,8 @@ def test_finished_logdir_is_untouched_by_bad_reruns(small_sweep, tmp_path):
     logdir = tmp_path / "runs"
     shutil.copytree(finished, logdir)
     before = _snapshot(logdir)
-    _assert_refused(run_cli(*SMALL, "tolerance=3", f"logdir={logdir}"),
-                    "different configuration", "tolerance")
+    _assert_refused(
+        run_cli(*SMALL, "tolerance=3", f"logdir={logdir}"), "different configuration", "tolerance"
+    )
     _assert_refused(run_cli(*SMALL, "removed_pcs=[0,900]", f"logdir={logdir}"), "900")
     assert _snapshot(logdir) == before

@@ -49,8 +49,11 @@ def write_vpr_bench(root: Path, route, *, drop_rows=(), skew=0) -> tuple[list, l
     for n, i in enumerate(places):
         if n in drop_rows:
             continue
-        near = [position[f"r{j}.png"] for j in (i - 1 + skew, i + skew, i + 1 + skew)
-                if 0 <= j < N_PLACES]  # fmt: skip
+        near = [
+            position[f"r{j}.png"]
+            for j in (i - 1 + skew, i + skew, i + 1 + skew)
+            if 0 <= j < N_PLACES
+        ]
         rows.append((n, near))
     table = np.empty(len(rows), dtype=object)
     for r, row in enumerate(rows):
@@ -94,16 +97,19 @@ def _refused(proc, *words):
 def test_vpr_bench_raw_recall_equals_a_numpy_reference(route, tmp_path):
     root = tmp_path / "bench"
     refs, queries, rows = write_vpr_bench(root, route, drop_rows={7})
-    proc = run_cli("data.source=vpr_bench", f"data.root={root}", *RAW,
-                   f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        "data.source=vpr_bench", f"data.root={root}", *RAW, f"logdir={tmp_path / 'runs'}"
+    )
     assert proc.returncode == 0, proc.stderr
     (row,) = read_results(tmp_path / "runs" / "results.csv")
     n_val = round(0.1 * len(queries))  # split.val_fraction of the queries validate
     n_test = len(queries) - n_val
     sets = {n: set(near) for n, near in rows}  # query 7 has no row: no correct reference
-    expected = reference_recall([root / "ref" / r for r in refs],
-                                [root / "query" / q for q in queries[:n_test]],
-                                [sets.get(n, set()) for n in range(n_test)])  # fmt: skip
+    expected = reference_recall(
+        [root / "ref" / r for r in refs],
+        [root / "query" / q for q in queries[:n_test]],
+        [sets.get(n, set()) for n in range(n_test)],
+    )
     assert (row.season_pair, row.n_test, row.n_train) == ("ref-query", n_test, N_PLACES)
     assert row.recall_at_1 == pytest.approx(expected, abs=1e-12) and 0.3 < expected < 1.0
     assert row.ground_truth == "ground_truth_new.npy" and row.tolerance == -1
@@ -115,8 +121,9 @@ def test_the_ground_truth_file_decides_what_is_correct(route, tmp_path):
     """The same images with every reference list shifted by 30 places: recall@1 collapses."""
     root = tmp_path / "bench"
     write_vpr_bench(root, route, skew=30)
-    proc = run_cli("data.source=vpr_bench", f"data.root={root}", *RAW,
-                   f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        "data.source=vpr_bench", f"data.root={root}", *RAW, f"logdir={tmp_path / 'runs'}"
+    )
     assert proc.returncode == 0, proc.stderr
     (row,) = read_results(tmp_path / "runs" / "results.csv")
     assert row.recall_at_1 < 0.1
@@ -150,15 +157,21 @@ def write_positions(root: Path, route, rng) -> tuple[np.ndarray, np.ndarray]:
 def test_positions_raw_recall_equals_a_numpy_reference(route, tmp_path):
     root = tmp_path / "drive"
     db_xy, q_xy = write_positions(root, route, np.random.default_rng(0))
-    proc = run_cli("data.source=positions", f"data.root={root}", "data.radius_m=20", *RAW,
-                   f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        "data.source=positions",
+        f"data.root={root}",
+        "data.radius_m=20",
+        *RAW,
+        f"logdir={tmp_path / 'runs'}",
+    )
     assert proc.returncode == 0, proc.stderr
     (row,) = read_results(tmp_path / "runs" / "results.csv")
     n_test = len(q_xy) - round(0.1 * len(q_xy))
     distance = np.sqrt(((q_xy[:, None] - db_xy[None]) ** 2).sum(-1))  # dense: the oracle
     sets = [set(np.flatnonzero(distance[n] <= 20)) for n in range(n_test)]
-    expected = reference_recall(sorted((root / "database").iterdir()),
-                                sorted((root / "queries").iterdir())[:n_test], sets)
+    expected = reference_recall(
+        sorted((root / "database").iterdir()), sorted((root / "queries").iterdir())[:n_test], sets
+    )
     assert row.season_pair == "database-queries" and row.n_test == n_test
     assert row.recall_at_1 == pytest.approx(expected, abs=1e-12) and expected > 0.3
     assert row.ground_truth == "within 20 m"
@@ -167,11 +180,21 @@ def test_positions_raw_recall_equals_a_numpy_reference(route, tmp_path):
 def test_an_aligned_route_trains_what_learns_from_alignment(route, tmp_path):
     root = tmp_path / "bench"
     write_vpr_bench(root, route)
-    proc = run_cli("data.source=vpr_bench", f"data.root={root}", "data.train_source=synthetic",
-                   "data.n_frames=300", "data.seasons=[summer,fall]", "split.n_train=150",
-                   "split.n_test=60", "split.gap=10", "methods=[raw,lda,fae]",
-                   "fae.objective=cross_season", "fae.hidden=16", "fae.epochs=1",
-                   f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        "data.source=vpr_bench",
+        f"data.root={root}",
+        "data.train_source=synthetic",
+        "data.n_frames=300",
+        "data.seasons=[summer,fall]",
+        "split.n_train=150",
+        "split.n_test=60",
+        "split.gap=10",
+        "methods=[raw,lda,fae]",
+        "fae.objective=cross_season",
+        "fae.hidden=16",
+        "fae.epochs=1",
+        f"logdir={tmp_path / 'runs'}",
+    )
     assert proc.returncode == 0, proc.stderr
     rows = {r.method: r for r in read_results(tmp_path / "runs" / "results.csv")}
     assert set(rows) == {"raw", "lda", "fae"} and rows["fae"].objective == "cross_season"
@@ -182,11 +205,19 @@ def test_an_aligned_route_trains_what_learns_from_alignment(route, tmp_path):
 
 
 def test_nordland_star_from_a_tiny_release(route, tmp_path):
-    frames = {"summer": [_u8(im) for im in route.images["summer"]],
-              "winter": [_u8(im) for im in route.images["fall"]]}
+    frames = {
+        "summer": [_u8(im) for im in route.images["summer"]],
+        "winter": [_u8(im) for im in route.images["fall"]],
+    }
     root = write_release(tmp_path / "release", frames)  # images-00001 ... images-00120
-    proc = run_cli("preset=nordland_star", f"data.root={root}", "data.frame_range=[11,110]",
-                   "removed_pcs=[0,5]", "methods=[raw,pca]", f"logdir={tmp_path / 'runs'}")
+    proc = run_cli(
+        "preset=nordland_star",
+        f"data.root={root}",
+        "data.frame_range=[11,110]",
+        "removed_pcs=[0,5]",
+        "methods=[raw,pca]",
+        f"logdir={tmp_path / 'runs'}",
+    )
     assert proc.returncode == 0, proc.stderr
     rows = read_results(tmp_path / "runs" / "results.csv")
     raw = next(r for r in rows if r.method == "raw")
@@ -196,7 +227,9 @@ def test_nordland_star_from_a_tiny_release(route, tmp_path):
     sets = [{k for k in (10 * n - 1, 10 * n, 10 * n + 1) if 0 <= k < 100} for n in range(n_test)]
     expected = reference_recall(
         [root / "winter" / f"images-{i:05d}.png" for i in ids],
-        [root / "summer" / f"images-{ids[10 * n]:05d}.png" for n in range(n_test)], sets)
+        [root / "summer" / f"images-{ids[10 * n]:05d}.png" for n in range(n_test)],
+        sets,
+    )
     assert (raw.season_pair, raw.n_test, raw.n_train) == ("winter-summer", n_test, 100)
     assert raw.recall_at_1 == pytest.approx(expected, abs=1e-12)
     assert raw.ground_truth == "+-1 frame (Nordland*)"
@@ -206,9 +239,16 @@ def test_nordland_clean_reads_its_frame_range(route, tmp_path):
     seasons = ("spring", "summer", "fall", "winter")
     images = [_u8(im) for im in route.images["summer"]]
     root = write_release(tmp_path / "release", {s: images for s in seasons})
-    proc = run_cli("preset=nordland_clean", f"data.root={root}", "data.frame_range=[3,118]",
-                   "split.n_test=20", "split.gap=5", "methods=[raw]",
-                   "season_pairs=summer-winter", f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        "preset=nordland_clean",
+        f"data.root={root}",
+        "data.frame_range=[3,118]",
+        "split.n_test=20",
+        "split.gap=5",
+        "methods=[raw]",
+        "season_pairs=summer-winter",
+        f"logdir={tmp_path / 'runs'}",
+    )
     assert proc.returncode == 0, proc.stderr
     assert "116 frames x 4 seasons" in proc.stdout and "frames 3..118" in proc.stdout
     (row,) = read_results(tmp_path / "runs" / "results.csv")
@@ -216,27 +256,46 @@ def test_nordland_clean_reads_its_frame_range(route, tmp_path):
 
 
 BAD = {
-    "no ref folder": (lambda r: __import__("shutil").rmtree(r / "ref"), ["vpr_bench"],
-                      ["ref is missing", "ref/, query/ and ground_truth_new.npy"]),
-    "no query folder": (lambda r: __import__("shutil").rmtree(r / "query"), ["vpr_bench"],
-                        ["query is missing"]),
-    "no ground truth file": (lambda r: (r / "ground_truth_new.npy").unlink(), ["vpr_bench"],
-                             ["ground_truth_new.npy is missing"]),
+    "no ref folder": (
+        lambda r: __import__("shutil").rmtree(r / "ref"),
+        ["vpr_bench"],
+        ["ref is missing", "ref/, query/ and ground_truth_new.npy"],
+    ),
+    "no query folder": (
+        lambda r: __import__("shutil").rmtree(r / "query"),
+        ["vpr_bench"],
+        ["query is missing"],
+    ),
+    "no ground truth file": (
+        lambda r: (r / "ground_truth_new.npy").unlink(),
+        ["vpr_bench"],
+        ["ground_truth_new.npy is missing"],
+    ),
     "a row naming an absent query": (
-        lambda r: (r / "query" / "q059.png").unlink(), ["vpr_bench"],
-        ["names query image 59", "holds 59 images"]),
+        lambda r: (r / "query" / "q059.png").unlink(),
+        ["vpr_bench"],
+        ["names query image 59", "holds 59 images"],
+    ),
     "a row naming an absent reference": (
-        lambda r: [p.unlink() for p in sorted((r / "ref").iterdir())[100:]], ["vpr_bench"],
-        ["names reference image", "holds 100 images"]),
+        lambda r: [p.unlink() for p in sorted((r / "ref").iterdir())[100:]],
+        ["vpr_bench"],
+        ["names reference image", "holds 100 images"],
+    ),
     "alignment methods without aligned places": (
-        lambda r: None, ["vpr_bench", "methods=[raw,lda]"],
-        ["methods ['lda'] learn from aligned training places", "data.train_source"]),
+        lambda r: None,
+        ["vpr_bench", "methods=[raw,lda]"],
+        ["methods ['lda'] learn from aligned training places", "data.train_source"],
+    ),
     "cross_season without aligned places": (
-        lambda r: None, ["vpr_bench", "methods=[fae]", "fae.objective=cross_season"],
-        ["fae.objective=cross_season needs aligned training places"]),
+        lambda r: None,
+        ["vpr_bench", "methods=[fae]", "fae.objective=cross_season"],
+        ["fae.objective=cross_season needs aligned training places"],
+    ),
     "a pair the benchmark has not": (
-        lambda r: None, ["vpr_bench", "season_pairs=summer-fall"],
-        ["its one pair is ref-query"]),
+        lambda r: None,
+        ["vpr_bench", "season_pairs=summer-fall"],
+        ["its one pair is ref-query"],
+    ),
 }
 
 
@@ -247,8 +306,9 @@ def test_bad_vpr_bench_layouts_are_one_line(route, tmp_path, case):
     write_vpr_bench(root, route)
     spoil(root)
     source, *rest = args
-    proc = run_cli(f"data.source={source}", f"data.root={root}", *rest,
-                   f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        f"data.source={source}", f"data.root={root}", *rest, f"logdir={tmp_path / 'runs'}"
+    )
     _refused(proc, *words)
     assert not (tmp_path / "runs").exists()
 
@@ -259,17 +319,31 @@ def _drop_csv_row(path: Path, name: str) -> None:
 
 
 POSITIONS_BAD = {
-    "a file without a position": (lambda r: _drop_csv_row(r / "queries.csv", "0004.png"), [],
-                                  ["queries.csv has no position for 1 image(s)", "0004.png"]),
+    "a file without a position": (
+        lambda r: _drop_csv_row(r / "queries.csv", "0004.png"),
+        [],
+        ["queries.csv has no position for 1 image(s)", "0004.png"],
+    ),
     "a position that is not a number": (
-        lambda r: (r / "database.csv").write_text("name,x,y\n0000.png,east,1\n"), [],
-        ["database.csv line 2", "not two numbers"]),
-    "a csv without name,x,y": (lambda r: (r / "database.csv").write_text("file,lat\n"), [],
-                               ["not name,x,y"]),
-    "no database folder": (lambda r: __import__("shutil").rmtree(r / "database"), [],
-                           ["database is missing", "database.csv and queries.csv"]),
-    "a radius of zero": (lambda r: None, ["data.radius_m=0"], ["data.radius_m=0.0 must be "
-                                                               "positive"]),
+        lambda r: (r / "database.csv").write_text("name,x,y\n0000.png,east,1\n"),
+        [],
+        ["database.csv line 2", "not two numbers"],
+    ),
+    "a csv without name,x,y": (
+        lambda r: (r / "database.csv").write_text("file,lat\n"),
+        [],
+        ["not name,x,y"],
+    ),
+    "no database folder": (
+        lambda r: __import__("shutil").rmtree(r / "database"),
+        [],
+        ["database is missing", "database.csv and queries.csv"],
+    ),
+    "a radius of zero": (
+        lambda r: None,
+        ["data.radius_m=0"],
+        ["data.radius_m=0.0 must be positive"],
+    ),
     "a negative radius": (lambda r: None, ["data.radius_m=-5"], ["data.radius_m=-5.0"]),
 }
 
@@ -280,8 +354,9 @@ def test_bad_positions_layouts_are_one_line(route, tmp_path, case):
     root = tmp_path / "drive"
     write_positions(root, route, np.random.default_rng(1))
     spoil(root)
-    proc = run_cli("data.source=positions", f"data.root={root}", *args,
-                   f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        "data.source=positions", f"data.root={root}", *args, f"logdir={tmp_path / 'runs'}"
+    )
     _refused(proc, *words)
     assert not (tmp_path / "runs").exists()
 
@@ -298,8 +373,14 @@ def test_sequences_of_a_benchmark_follow_its_file_order(route, tmp_path):
     for i in range(N_PLACES):
         table[i] = (i, [j for j in (i - 1, i, i + 1) if 0 <= j < N_PLACES])
     np.save(root / "ground_truth_new.npy", table, allow_pickle=True)
-    proc = run_cli("data.source=vpr_bench", f"data.root={root}", *RAW, "sequence.enabled=true",
-                   "sequence.ds=[1,4]", f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        "data.source=vpr_bench",
+        f"data.root={root}",
+        *RAW,
+        "sequence.enabled=true",
+        "sequence.ds=[1,4]",
+        f"logdir={tmp_path / 'runs'}",
+    )
     assert proc.returncode == 0, proc.stderr
     rows = {r.ds: r for r in read_results(tmp_path / "runs" / "results.csv")}
     assert set(rows) == {1, 4} and rows[4].n_test == rows[1].n_test == N_PLACES - 12

@@ -77,8 +77,11 @@ def test_paired_difference_labels():
     same[:5] = ~same[:5]
     kw = dict(block_length=10, resamples=1000, seed=0)
     up = bootstrap.paired_recall_difference(better, base, **kw)
-    assert up.label == "better" and up.low > 0 and up.value == pytest.approx(
-        better.mean() - base.mean())
+    assert (
+        up.label == "better"
+        and up.low > 0
+        and up.value == pytest.approx(better.mean() - base.mean())
+    )
     assert bootstrap.paired_recall_difference(base, better, **kw).label == "worse"
     assert bootstrap.paired_recall_difference(same, base, **kw).label == "no clear difference"
     with pytest.raises(ValueError, match="same queries"):

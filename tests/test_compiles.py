@@ -30,8 +30,11 @@ def compiled(tmp_path_factory):
     ]
     proc = subprocess.run(
         [sys.executable, str(REPO / "tests" / "count_compiles.py"), str(logdir), *sweeps],
-        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True, text=True,
-    )  # fmt: skip
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 

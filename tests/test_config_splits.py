@@ -18,8 +18,15 @@ def test_defaults_and_overrides():
     assert cfg.preset == "quick" and cfg.logdir == "runs/quick"
     assert cfg.data.seasons == ("spring", "summer", "fall")
     assert cfg.removed_pcs == (0, 5, 10, 20, 50, 100)
-    cfg = parse_config(["methods=raw", "removed_pcs=[50,0,50]", "data.seasons=summer,winter",
-                        "season_pairs=[summer-winter]", "split.train_fraction=0.5"])
+    cfg = parse_config(
+        [
+            "methods=raw",
+            "removed_pcs=[50,0,50]",
+            "data.seasons=summer,winter",
+            "season_pairs=[summer-winter]",
+            "split.train_fraction=0.5",
+        ]
+    )
     assert cfg.methods == ("raw",) and cfg.removed_pcs == (0, 50)
     assert cfg.data.seasons == ("summer", "winter") and cfg.season_pairs == "summer-winter"
     assert cfg.split.train_fraction == 0.5
@@ -29,13 +36,21 @@ def test_paper_preset_file_is_applied():
     assert parse_config(["preset=paper"]) != parse_config([])
 
 
-@pytest.mark.parametrize("arg,words", [
-    ("foo=1", "foo"), ("tolerance=abc", "tolerance"), ("methods=[raw,sift]", "sift"),
-    ("removed_pcs=[-5]", "negative"), ("data.source=web", "data.source"),
-    ("preset=huge", "preset"), ("data.seasons=[summer]", "two seasons"),
-    ("split.train_fraction=1.5", "train_fraction"), ("data.source=folders", "data.root"),
-    ("nonsense", "key=value"),
-])
+@pytest.mark.parametrize(
+    "arg,words",
+    [
+        ("foo=1", "foo"),
+        ("tolerance=abc", "tolerance"),
+        ("methods=[raw,sift]", "sift"),
+        ("removed_pcs=[-5]", "negative"),
+        ("data.source=web", "data.source"),
+        ("preset=huge", "preset"),
+        ("data.seasons=[summer]", "two seasons"),
+        ("split.train_fraction=1.5", "train_fraction"),
+        ("data.source=folders", "data.root"),
+        ("nonsense", "key=value"),
+    ],
+)
 def test_bad_config_is_one_line_user_error(arg, words):
     with pytest.raises(UserError) as err:
         parse_config([arg])
@@ -62,8 +77,9 @@ def test_count_split_has_gap_in_original_frames():
 
 
 def test_validation_stretch_follows_val_fraction_and_must_leave_training():
-    split = make_split(np.arange(1000), SplitConfig(n_train=500, n_test=100, gap=5,
-                                                    val_fraction=0.2))  # fmt: skip
+    split = make_split(
+        np.arange(1000), SplitConfig(n_train=500, n_test=100, gap=5, val_fraction=0.2)
+    )
     np.testing.assert_array_equal(split.val, np.arange(400, 500))
     np.testing.assert_array_equal(split.train, np.arange(395))
     with pytest.raises(UserError, match="split.val_fraction"):
@@ -155,8 +171,10 @@ def test_the_config_names_what_the_library_registers():
 
 
 def test_the_config_and_the_logdir_checks_load_without_jax():
-    code = ("import sys; import vpr_jax.config, vpr_jax.logdir, experiments.plan; "
-            "assert not [m for m in sys.modules if m == 'jax' or m.startswith('jax.')], "
-            "'jax was imported'")
+    code = (
+        "import sys; import vpr_jax.config, vpr_jax.logdir, experiments.plan; "
+        "assert not [m for m in sys.modules if m == 'jax' or m.startswith('jax.')], "
+        "'jax was imported'"
+    )
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr

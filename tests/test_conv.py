@@ -90,18 +90,25 @@ def test_only_wide_stride_1_nhwc_convolutions_take_the_product_gradient():
         ),
     ]
     for (x, w), kw in others:  # these go to lax unchanged
-        assert _jaxpr(conv_general_dilated, x, w, **kw) == _jaxpr(lax.conv_general_dilated, x,
-                                                                  w, **kw)  # fmt: skip
+        assert _jaxpr(conv_general_dilated, x, w, **kw) == _jaxpr(
+            lax.conv_general_dilated, x, w, **kw
+        )
 
 
 def test_flax_conv_with_it_trains_like_flax_conv_with_lax():
     x, _ = _data((4, 8, 16, MIN_CHANNELS), (1, 1, 1, 1))
     grads = []
     for conv_fn in (conv_general_dilated, lax.conv_general_dilated):
-        layer = nnx.Conv(MIN_CHANNELS, MIN_CHANNELS + 3, (4, 4), padding="SAME",
-                         conv_general_dilated=conv_fn, rngs=nnx.Rngs(0))  # fmt: skip
+        layer = nnx.Conv(
+            MIN_CHANNELS,
+            MIN_CHANNELS + 3,
+            (4, 4),
+            padding="SAME",
+            conv_general_dilated=conv_fn,
+            rngs=nnx.Rngs(0),
+        )
         grads.append(nnx.grad(lambda m: jnp.mean(m(x) ** 2))(layer))
-    np.testing.assert_allclose(grads[0]["kernel"][...], grads[1]["kernel"][...], rtol=1e-4,
-                               atol=1e-6)  # fmt: skip
-    np.testing.assert_allclose(grads[0]["bias"][...], grads[1]["bias"][...], rtol=1e-4,
-                               atol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(
+        grads[0]["kernel"][...], grads[1]["kernel"][...], rtol=1e-4, atol=1e-6
+    )
+    np.testing.assert_allclose(grads[0]["bias"][...], grads[1]["bias"][...], rtol=1e-4, atol=1e-6)

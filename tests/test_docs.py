@@ -70,8 +70,7 @@ def test_the_refusal_catalogue_lists_every_bad_input_case():
     from tests import test_bad_input
 
     catalogue = (REPO / "docs" / "refusals.md").read_text()
-    cases = [*test_bad_input.DATA_CASES, *test_bad_input.CONFIG_CASES,
-             *test_bad_input.LOGDIR_CASES]  # fmt: skip
+    cases = [*test_bad_input.DATA_CASES, *test_bad_input.CONFIG_CASES, *test_bad_input.LOGDIR_CASES]
     missing = [case for case in cases if f"| {case} |" not in catalogue]
     assert not missing, f"docs/refusals.md lacks {missing}"
     for module, name in re.findall(r"`(test_\w+\.py)::(\w+)", catalogue):

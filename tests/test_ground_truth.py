@@ -66,8 +66,9 @@ def test_sequence_matches_score_the_same_against_sets():
 def test_within_radius_equals_the_dense_distance_matrix():
     rng = np.random.default_rng(0)
     db = rng.uniform(-500, 1500, (400, 2)) + [3.5e5, 6.9e6]  # UTM-like metres
-    query = np.concatenate([db[:50] + rng.normal(0, 20, (50, 2)),
-                            rng.uniform(-500, 1500, (50, 2)) + [3.5e5, 6.9e6]])
+    query = np.concatenate(
+        [db[:50] + rng.normal(0, 20, (50, 2)), rng.uniform(-500, 1500, (50, 2)) + [3.5e5, 6.9e6]]
+    )
     query[0] = db[7] + [25.0, 0.0]  # exactly on the radius: a match (<=)
     for radius in (25.0, 60.0, 300.0):
         sets = within_radius(query, db, radius)
@@ -82,8 +83,7 @@ def test_match_sets_sorts_rows_drops_repeats_and_takes_queries():
     assert [list(sets.row(i)) for i in range(3)] == [[1, 4], [], [0, 2]]
     np.testing.assert_array_equal(sets.has_match(), [True, False, True])
     idx = np.array([[1, 0], [3, 4], [2, 1]])
-    np.testing.assert_array_equal(sets.correct(idx), [[True, False], [False, False],
-                                                      [True, False]])  # fmt: skip
+    np.testing.assert_array_equal(sets.correct(idx), [[True, False], [False, False], [True, False]])
     part = sets.take(np.array([2, 0]))
     assert [list(part.row(i)) for i in range(2)] == [[0, 2], [1, 4]]
     with pytest.raises(ValueError, match=r"\[0, 5\)"):

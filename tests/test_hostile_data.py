@@ -37,8 +37,14 @@ def hostile_root(tmp_path_factory):
 
 
 def _run(root, logdir, *args):
-    proc = run_cli("data.source=nordland_images", f"data.root={root}", *SPLIT,
-                   "season_pairs=summer-fall,spring-fall", f"logdir={logdir}", *args)
+    proc = run_cli(
+        "data.source=nordland_images",
+        f"data.root={root}",
+        *SPLIT,
+        "season_pairs=summer-fall,spring-fall",
+        f"logdir={logdir}",
+        *args,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
     return proc, (logdir / "sweep.log").read_text()
@@ -53,8 +59,15 @@ def _assert_finite(rows):
 
 def test_hostile_route_is_reported_kept_and_scored(hostile_root, tmp_path):
     logdir = tmp_path / "runs"
-    proc, log = _run(hostile_root, logdir, "methods=[raw,pca,ica,fae]", "removed_pcs=[0,5]",
-                     "ica.n_components=16", "fae.hidden=64", "fae.epochs=2")
+    proc, log = _run(
+        hostile_root,
+        logdir,
+        "methods=[raw,pca,ica,fae]",
+        "removed_pcs=[0,5]",
+        "ica.n_components=16",
+        "fae.hidden=64",
+        "fae.epochs=2",
+    )
     for line in (
         "converted colour images to grayscale (summer 1)",
         "seasons hold different frames: keeping the 258 common to all; frames dropped per "
@@ -77,10 +90,17 @@ def test_hostile_route_is_reported_kept_and_scored(hostile_root, tmp_path):
 
 def test_constant_frames_are_dropped_when_asked(hostile_root, tmp_path):
     logdir = tmp_path / "runs"
-    proc, log = _run(hostile_root, logdir, "methods=[raw,pca]", "removed_pcs=[0,5]",
-                     "data.drop_constant_frames=true")
-    assert ("spring 6, summer 6, fall 9, at 9 places; dropped from every season "
-            "(data.drop_constant_frames=true), 249 places left") in log
+    proc, log = _run(
+        hostile_root,
+        logdir,
+        "methods=[raw,pca]",
+        "removed_pcs=[0,5]",
+        "data.drop_constant_frames=true",
+    )
+    assert (
+        "spring 6, summer 6, fall 9, at 9 places; dropped from every season "
+        "(data.drop_constant_frames=true), 249 places left"
+    ) in log
     assert "sweep: 249 frames per season" in log
     rows = read_results(logdir / "results.csv")
     assert len(rows) == 2 * (1 + 2)

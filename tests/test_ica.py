@@ -252,18 +252,28 @@ def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     route = synthetic_route(300, ("summer", "fall"), 0)
     s, f = route.images["summer"], route.images["fall"]
     test_ids, val_ids = route.frame_ids[250:], route.frame_ids[220:240]
-    pair = PairData("summer", "fall", np.concatenate([s[:200], f[:200]]), s[250:], f[250:],
-                    test_ids, test_ids, Tolerance.of(test_ids, test_ids, 2),
-                    s[220:240], f[220:240], val_ids, val_ids,
-                    Tolerance.of(val_ids, val_ids, 2))  # fmt: skip
+    pair = PairData(
+        "summer",
+        "fall",
+        np.concatenate([s[:200], f[:200]]),
+        s[250:],
+        f[250:],
+        test_ids,
+        test_ids,
+        Tolerance.of(test_ids, test_ids, 2),
+        s[220:240],
+        f[220:240],
+        val_ids,
+        val_ids,
+        Tolerance.of(val_ids, val_ids, 2),
+    )
     cfg = parse_config(["ica.n_components=12", "tb.n_basis_images=5"])
     fit = fit_pair_pca(pair, cfg, None)
     ctx = MethodContext(removed_pcs=(0, 4), pca_fit=fit)
     cells = list(METHODS["ica"](pair, cfg, ctx))
     (coefficients,) = METHODS["pca"](pair, cfg, ctx)
     # PCA and ICA both work from the fit they are handed, not from one of their own.
-    np.testing.assert_array_equal(coefficients.query,
-                                  pca.suffix_descriptors(fit.state, pair.query))
+    np.testing.assert_array_equal(coefficients.query, pca.suffix_descriptors(fit.state, pair.query))
     other = fit_pair_pca(pair._replace(train=pair.train[::-1][:300]), cfg, None)
     (elsewhere,) = METHODS["ica"](pair, cfg, ctx._replace(removed_pcs=(4,), pca_fit=other))
     assert not np.allclose(elsewhere.query, cells[1].query)

@@ -26,10 +26,10 @@ def _images(n: int, seed: int = 0) -> np.ndarray:
 
 def test_training_pairs_follow_frame_ids_not_positions(tmp_path):
     # fall lacks frame 1 and has frame 41: by position every fall image would be one place on.
-    write_release(tmp_path, {"summer": [frame_image("summer", f) for f in range(1, 41)]},
-                  range(1, 41))
-    write_release(tmp_path, {"fall": [frame_image("fall", f) for f in range(2, 42)]},
-                  range(2, 42))
+    write_release(
+        tmp_path, {"summer": [frame_image("summer", f) for f in range(1, 41)]}, range(1, 41)
+    )
+    write_release(tmp_path, {"fall": [frame_image("fall", f) for f in range(2, 42)]}, range(2, 42))
     route = read_image_release(tmp_path, ["summer", "fall"], log=lambda line: None)
     split = make_split(route.frame_ids, SplitConfig(n_train=20, n_test=10, gap=2))
     data = pair_data(route, split, "summer", "fall", "test", 2)
@@ -40,8 +40,9 @@ def test_training_pairs_follow_frame_ids_not_positions(tmp_path):
     for some, frames in ((pairs, ids), (val_pairs, route.frame_ids[split.val])):
         for i, frame in enumerate(frames):
             for season, j in (("summer", 0), ("fall", 1)):
-                np.testing.assert_array_equal(some[i, j],
-                                              frame_image(season, frame) / np.float32(255))
+                np.testing.assert_array_equal(
+                    some[i, j], frame_image(season, frame) / np.float32(255)
+                )
 
 
 def test_a_places_two_images_get_the_same_augmentation():
@@ -58,52 +59,82 @@ def test_cross_season_scores_either_season_against_the_places_mean():
     graphdef, params = ae.build(ae.FAESpec(hidden=8), jax.random.key(0))
     model = ae.make_reconstruct(graphdef)
     a, b = _images(6, 1), _images(6, 2)
-    got = np.asarray(objectives.per_example_loss(
-        "cross_season", lambda x: model(params, x), np.stack([a, b], axis=1)))  # fmt: skip
+    got = np.asarray(
+        objectives.per_example_loss(
+            "cross_season", lambda x: model(params, x), np.stack([a, b], axis=1)
+        )
+    )
     mean = (a + b) / 2
     out_a, out_b = np.asarray(model(params, a)), np.asarray(model(params, b))
     error = lambda out: ((out - mean) ** 2).mean(axis=(1, 2))  # noqa: E731
     expected = (error(out_a) + error(out_b)) / 2
     np.testing.assert_allclose(got, expected, rtol=1e-5)
-    assert float(objectives.loss("cross_season", graphdef, params, np.stack([a, b], 1))) == \
-        pytest.approx(expected.mean(), rel=1e-5)
+    assert float(
+        objectives.loss("cross_season", graphdef, params, np.stack([a, b], 1))
+    ) == pytest.approx(expected.mean(), rel=1e-5)
 
 
 @pytest.mark.parametrize("spec", [ae.FAESpec(hidden=16), ae.CAESpec((4, 8), (3, 3), 8, 2)])
 def test_cross_season_trains_checkpoints_and_loads(spec, tmp_path):
     images = np.concatenate([_images(120, 4), _images(120, 4) * 0.6 + 0.2])  # two "seasons"
     train, val = tail_validation(images, 2, 0.1)
-    settings = TrainConfig(epochs=3, batch_size=32, learning_rate=3e-3, patience=10,
-                           checkpoint_every_s=0)  # fmt: skip
+    settings = TrainConfig(
+        epochs=3, batch_size=32, learning_rate=3e-3, patience=10, checkpoint_every_s=0
+    )
     pairs, val_pairs = (objectives.training_data("cross_season", x) for x in (train, val))
-    result = fit_autoencoder(spec, pairs, val_pairs, jax.random.key(0), settings,
-                             checkpoint_dir=tmp_path / "m", objective="cross_season")
+    result = fit_autoencoder(
+        spec,
+        pairs,
+        val_pairs,
+        jax.random.key(0),
+        settings,
+        checkpoint_dir=tmp_path / "m",
+        objective="cross_season",
+    )
     assert result.steps == 3 * (len(pairs) // 16)  # 32 images a step: 16 places
     encode, params = load_encoder(tmp_path / "m")
-    np.testing.assert_array_equal(encode(params, val[:5]),
-                                  ae.make_encode(result.graphdef)(result.params, val[:5]))
-    again = fit_autoencoder(spec, pairs, val_pairs, jax.random.key(0), settings,
-                            checkpoint_dir=tmp_path / "m", objective="cross_season")
+    np.testing.assert_array_equal(
+        encode(params, val[:5]), ae.make_encode(result.graphdef)(result.params, val[:5])
+    )
+    again = fit_autoencoder(
+        spec,
+        pairs,
+        val_pairs,
+        jax.random.key(0),
+        settings,
+        checkpoint_dir=tmp_path / "m",
+        objective="cross_season",
+    )
     assert again.restored
     # The objective is part of the model's identity: the seed's objective does not reuse it.
     with pytest.raises(UserError, match="other data or settings"):
-        fit_autoencoder(spec, train, val, jax.random.key(0), settings,
-                        checkpoint_dir=tmp_path / "m", objective="reconstruct")
+        fit_autoencoder(
+            spec,
+            train,
+            val,
+            jax.random.key(0),
+            settings,
+            checkpoint_dir=tmp_path / "m",
+            objective="reconstruct",
+        )
 
 
 def test_cross_season_lowers_its_validation_loss():
     route = synthetic_route(120, ("summer", "fall"), 0)
-    train, val = tail_validation(np.concatenate([route.images["summer"],
-                                                  route.images["fall"]]), 2, 0.1)
+    train, val = tail_validation(
+        np.concatenate([route.images["summer"], route.images["fall"]]), 2, 0.1
+    )
     pairs, val_pairs = (objectives.training_data("cross_season", x) for x in (train, val))
     spec = ae.FAESpec(hidden=16)
     settings = TrainConfig(epochs=5, batch_size=16, learning_rate=3e-3, patience=10)
     graphdef, initial = ae.build(spec, jax.random.fold_in(jax.random.key(0), 0))
     model = ae.make_reconstruct(graphdef)
-    before = float(np.mean(objectives.per_example_loss(
-        "cross_season", lambda x: model(initial, x), val_pairs)))  # fmt: skip
-    result = fit_autoencoder(spec, pairs, val_pairs, jax.random.key(0), settings,
-                             objective="cross_season")
+    before = float(
+        np.mean(objectives.per_example_loss("cross_season", lambda x: model(initial, x), val_pairs))
+    )
+    result = fit_autoencoder(
+        spec, pairs, val_pairs, jax.random.key(0), settings, objective="cross_season"
+    )
     assert result.best_val_loss < 0.8 * before
 
 
@@ -115,11 +146,14 @@ def test_an_objective_list_is_one_value_or_many():
     assert parse_config([]).fae.objective == ("reconstruct", "cross_season")
 
 
-@pytest.mark.parametrize("args,words", [
-    (["fae.objective=swap"], ["fae.objective=['swap']", "cross_season"]),
-    (["cae.objective=[reconstruct,reconstruct]"], ["cae.objective", "repeats"]),
-    (["cae.model=huge"], ["cae.model=huge", "fast or calc"]),
-])
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["fae.objective=swap"], ["fae.objective=['swap']", "cross_season"]),
+        (["cae.objective=[reconstruct,reconstruct]"], ["cae.objective", "repeats"]),
+        (["cae.model=huge"], ["cae.model=huge", "fast or calc"]),
+    ],
+)
 def test_bad_objective_or_model_is_one_line(args, words, tmp_path):
     proc = run_cli(*args, f"logdir={tmp_path / 'runs'}")
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr

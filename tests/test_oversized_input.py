@@ -12,8 +12,15 @@ from tests.conftest import run_cli
 from tests.test_nordland import SRC_H, SRC_W, write_video
 from vpr_jax.data.image_header import image_size
 
-FOLDERS = ["data.source=folders", "split.n_train=30", "split.n_test=10", "split.gap=2",
-           "methods=[raw]", "season_pairs=summer-winter", "data.seasons=[summer,winter]"]
+FOLDERS = [
+    "data.source=folders",
+    "split.n_train=30",
+    "split.n_test=10",
+    "split.gap=2",
+    "methods=[raw]",
+    "season_pairs=summer-winter",
+    "data.seasons=[summer,winter]",
+]
 
 
 @pytest.mark.parametrize("ext", [".png", ".jpg", ".bmp"])
@@ -29,10 +36,18 @@ def _huge_png(path, width: int, height: int) -> None:
     """A PNG whose header (with a valid CRC) claims width x height grey pixels; its data
     are one row of zeros: decoding it would allocate the full image."""
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    chunk = lambda kind, data: (struct.pack(">I", len(data)) + kind + data  # noqa: E731
-                                + struct.pack(">I", zlib.crc32(kind + data)))
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
-                     + chunk(b"IDAT", zlib.compress(b"\x00" * (width + 1))) + chunk(b"IEND", b""))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (
+            struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        )
+
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", ihdr)
+        + chunk(b"IDAT", zlib.compress(b"\x00" * (width + 1)))
+        + chunk(b"IEND", b"")
+    )
 
 
 def _folders(root, n=50):
@@ -66,14 +81,20 @@ def test_max_pixels_applies_to_jpeg_and_to_video_frames(tmp_path):
     large = root / "summer" / "frame_0003.jpg"
     (root / "summer" / "frame_0003.png").unlink()
     cv2.imwrite(str(large), np.zeros((200, 300, 3), np.uint8))
-    proc = run_cli(*FOLDERS, f"data.root={root}", "data.max_pixels=50000",
-                   f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        *FOLDERS, f"data.root={root}", "data.max_pixels=50000", f"logdir={tmp_path / 'runs'}"
+    )
     _refused(proc, str(large), "300 x 200", "data.max_pixels=50,000")
     videos = tmp_path / "videos"
     videos.mkdir()
     for season in ("summer", "winter"):
         write_video(videos / f"{season}.avi", 5.0, 10)
-    proc = run_cli("data.source=nordland_videos", f"data.root={videos}",
-                   "data.seasons=[summer,winter]", f"data.max_pixels={SRC_W * SRC_H - 1}",
-                   f"data.cache_dir={tmp_path / 'cache'}", f"logdir={tmp_path / 'runs'}")
+    proc = run_cli(
+        "data.source=nordland_videos",
+        f"data.root={videos}",
+        "data.seasons=[summer,winter]",
+        f"data.max_pixels={SRC_W * SRC_H - 1}",
+        f"data.cache_dir={tmp_path / 'cache'}",
+        f"logdir={tmp_path / 'runs'}",
+    )
     _refused(proc, "video", f"{SRC_W} x {SRC_H}", "data.max_pixels")

@@ -16,8 +16,9 @@ def _data(n, d, seed=0):
     return (rng.normal(size=(n, d)) * np.linspace(3.0, 0.2, d)).astype(np.float32) + 0.5
 
 
-@pytest.mark.parametrize("n,d,solver", [(400, 40, "covariance"), (30, 60, "gram"),
-                                        (400, 40, "auto"), (30, 60, "auto")])
+@pytest.mark.parametrize(
+    "n,d,solver", [(400, 40, "covariance"), (30, 60, "gram"), (400, 40, "auto"), (30, 60, "auto")]
+)
 def test_fit_matches_sklearn(n, d, solver):
     x = _data(n, d)
     state = pca.fit_pca(x, solver=solver)
@@ -25,12 +26,12 @@ def test_fit_matches_sklearn(n, d, solver):
     c = min(n - 1, d)
     assert state.components.shape == (c, d)
     np.testing.assert_allclose(state.mean, sk.mean_, atol=1e-5)
-    np.testing.assert_allclose(state.explained_variance, sk.explained_variance_[:c],
-                               rtol=2e-3, atol=1e-4)
+    np.testing.assert_allclose(
+        state.explained_variance, sk.explained_variance_[:c], rtol=2e-3, atol=1e-4
+    )
     # Same signs too: both use svd_flip's convention (largest |entry| of a row positive).
     np.testing.assert_allclose(state.components, sk.components_[:c], atol=2e-3)
-    np.testing.assert_allclose(pca.project(state, x[:7]), sk.transform(x[:7])[:, :c],
-                               atol=2e-3)
+    np.testing.assert_allclose(pca.project(state, x[:7]), sk.transform(x[:7])[:, :c], atol=2e-3)
 
 
 def test_solvers_agree_and_components_orthonormal():
@@ -47,8 +48,7 @@ def test_images_are_flattened_and_test_data_uses_training_mean():
     x = _data(60, 32 * 4).reshape(60, 4, 32)
     state = pca.fit_pca(x)
     shifted = x[:5] + 10.0  # a test image far from the training mean
-    expected = (shifted.reshape(5, -1) - x.reshape(60, -1).mean(0)) @ np.asarray(
-        state.components).T
+    expected = (shifted.reshape(5, -1) - x.reshape(60, -1).mean(0)) @ np.asarray(state.components).T
     np.testing.assert_allclose(pca.project(state, shifted), expected, rtol=1e-4, atol=1e-3)
 
 
@@ -71,8 +71,9 @@ def test_pixels_and_coefficients_give_same_cosine():
     q, d = x[:10] + 0.1, x[10:30]
     for k in (0, 4, 20):
         coeff = cosine_similarity(pca.encode(state, q, k), pca.encode(state, d, k))
-        pixel = cosine_similarity(pca.encode(state, q, k, "pixels"),
-                                  pca.encode(state, d, k, "pixels"))
+        pixel = cosine_similarity(
+            pca.encode(state, q, k, "pixels"), pca.encode(state, d, k, "pixels")
+        )
         np.testing.assert_allclose(coeff, pixel, atol=1e-4)
 
 
@@ -83,8 +84,7 @@ def test_one_pass_over_removed_counts_equals_encoding_each():
     ks = (0, 2, 7, 30)
     one_pass = suffix_cosine(q, d, ks)
     for i, k in enumerate(ks):
-        each = cosine_similarity(pca.encode(state, x[:15] * 0.9, k),
-                                 pca.encode(state, x[15:60], k))
+        each = cosine_similarity(pca.encode(state, x[:15] * 0.9, k), pca.encode(state, x[15:60], k))
         np.testing.assert_allclose(one_pass[i], each, atol=2e-5)
 
 
@@ -100,8 +100,9 @@ def test_bad_arguments():
 
 def _principal_sines(a, b):
     """Sines of the principal angles between the row spaces of a and b (orthonormal rows)."""
-    cosines = np.linalg.svd(np.asarray(a, np.float64) @ np.asarray(b, np.float64).T,
-                            compute_uv=False)
+    cosines = np.linalg.svd(
+        np.asarray(a, np.float64) @ np.asarray(b, np.float64).T, compute_uv=False
+    )
     return np.sqrt(np.clip(1 - cosines**2, 0, None))
 
 
@@ -109,8 +110,9 @@ def _assert_leading_50_agree(fast, full):
     """The subspace fit's leading 50 components span the full fit's (principal-angle sines
     below 1e-2) with their variances, and all its components are orthonormal."""
     assert _principal_sines(fast.components[:50], full.components[:50]).max() < 1e-2
-    np.testing.assert_allclose(fast.explained_variance[:50], full.explained_variance[:50],
-                               rtol=1e-3)
+    np.testing.assert_allclose(
+        fast.explained_variance[:50], full.explained_variance[:50], rtol=1e-3
+    )
     gram = np.asarray(fast.components @ fast.components.T)
     np.testing.assert_allclose(gram, np.eye(len(gram)), atol=1e-4)
 
@@ -155,15 +157,20 @@ def test_removal_keeps_what_training_never_spanned():
     np.testing.assert_allclose(pca.encode(state, queries, 0, "pixels"), centred, atol=1e-5)
     raw = cosine_similarity(centred, centred[::-1])
     for output in ("coefficients", "pixels"):
-        ours = cosine_similarity(pca.encode(state, queries, 0, output),
-                                 pca.encode(state, queries[::-1], 0, output))
+        ours = cosine_similarity(
+            pca.encode(state, queries, 0, output), pca.encode(state, queries[::-1], 0, output)
+        )
         np.testing.assert_allclose(ours, raw, atol=1e-5)
     v = np.asarray(state.components[:5], np.float64)
     expected = centred - centred @ v.T @ v
     np.testing.assert_allclose(pca.encode(state, queries, 5, "pixels"), expected, atol=1e-4)
-    one_pass = suffix_cosine(pca.suffix_descriptors(state, queries),
-                             pca.suffix_descriptors(state, queries[::-1]), (0, 5, 8))
+    one_pass = suffix_cosine(
+        pca.suffix_descriptors(state, queries),
+        pca.suffix_descriptors(state, queries[::-1]),
+        (0, 5, 8),
+    )
     for i, k in enumerate((0, 5, 8)):
-        each = cosine_similarity(pca.encode(state, queries, k, "pixels"),
-                                 pca.encode(state, queries[::-1], k, "pixels"))
+        each = cosine_similarity(
+            pca.encode(state, queries, k, "pixels"), pca.encode(state, queries[::-1], k, "pixels")
+        )
         np.testing.assert_allclose(one_pass[i], each, atol=2e-5)

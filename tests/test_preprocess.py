@@ -33,10 +33,10 @@ def test_flat_patches_become_zero_not_nan():
 def test_brightness_and_contrast_leave_patch_normalised_images_unchanged():
     x = images()
     for changed in (x + 0.08, 0.6 * x + 0.2, np.float32(1.3) * x - 0.1):
-        np.testing.assert_allclose(patch_normalize(changed, 8), patch_normalize(x, 8),
-                                   atol=2e-6)
-        np.testing.assert_array_equal(patch_normalize(changed, 8, rounded=True),
-                                      patch_normalize(x, 8, rounded=True))
+        np.testing.assert_allclose(patch_normalize(changed, 8), patch_normalize(x, 8), atol=2e-6)
+        np.testing.assert_array_equal(
+            patch_normalize(changed, 8, rounded=True), patch_normalize(x, 8, rounded=True)
+        )
 
 
 def test_the_map_into_the_grey_range():

@@ -18,10 +18,20 @@ from vpr_jax.results import read_results
 METRICS = (*SCALAR_NAMES, "n_iter", "converged")
 # Two pairs, raw pixels and an FAE trained 6 epochs on the cross_season objective (pairs of
 # aligned places), checkpointed after every epoch.
-KILLABLE = ["data.n_frames=400", "split.n_train=100", "split.n_test=60", "split.gap=10",
-            "methods=[raw,fae]", "season_pairs=summer-fall,spring-fall", "fae.hidden=32",
-            "fae.objective=cross_season", "fae.epochs=6", "train.batch_size=16",
-            "train.patience=10", "train.checkpoint_every_s=0"]
+KILLABLE = [
+    "data.n_frames=400",
+    "split.n_train=100",
+    "split.n_test=60",
+    "split.gap=10",
+    "methods=[raw,fae]",
+    "season_pairs=summer-fall,spring-fall",
+    "fae.hidden=32",
+    "fae.objective=cross_season",
+    "fae.epochs=6",
+    "train.batch_size=16",
+    "train.patience=10",
+    "train.checkpoint_every_s=0",
+]
 
 
 def _cells(rows: list[dict]) -> dict:
@@ -33,18 +43,25 @@ def _cells(rows: list[dict]) -> dict:
 
 # ``python -m experiments.sweep ARGS`` with Ctrl-C raising KeyboardInterrupt as in a terminal,
 # also where the test runner was started with SIGINT ignored (a background job of a script).
-AS_IN_A_TERMINAL = ("import runpy, signal, sys; "
-                    "signal.signal(signal.SIGINT, signal.default_int_handler); "
-                    "sys.argv[0] = 'experiments.sweep'; "
-                    "runpy.run_module('experiments.sweep', run_name='__main__', alter_sys=True)")
+AS_IN_A_TERMINAL = (
+    "import runpy, signal, sys; "
+    "signal.signal(signal.SIGINT, signal.default_int_handler); "
+    "sys.argv[0] = 'experiments.sweep'; "
+    "runpy.run_module('experiments.sweep', run_name='__main__', alter_sys=True)"
+)
 
 
 def _signal_during(line_part: str, args: list[str], sig=signal.SIGKILL):
     """Start the sweep, send it ``sig`` once a line containing ``line_part`` is printed;
     returns (exit code, stdout up to there, stderr)."""
-    proc = subprocess.Popen([sys.executable, "-c", AS_IN_A_TERMINAL, *args], cwd=REPO,
-                            env={**os.environ, "PYTHONPATH": str(REPO)}, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-c", AS_IN_A_TERMINAL, *args],
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     seen = []
     try:
         for line in proc.stdout:
@@ -91,8 +108,9 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
 def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):
     logdir, ck = tmp_path / "runs", tmp_path / "checkpoints"
     args = [*KILLABLE, f"logdir={logdir}", f"train.checkpoint_dir={ck}"]
-    code, printed, err = _signal_during("summer-fall fae_cross_season epoch 2/6", args,
-                                        signal.SIGINT)
+    code, printed, err = _signal_during(
+        "summer-fall fae_cross_season epoch 2/6", args, signal.SIGINT
+    )
     assert code == 130, (printed[-2000:], err)
     assert "Traceback" not in err + printed
     (line,) = err.strip().splitlines()
@@ -110,10 +128,14 @@ def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):
 
 
 def test_sigterm_stops_like_ctrl_c(tmp_path):
-    args = [*KILLABLE, f"logdir={tmp_path / 'runs'}",
-            f"train.checkpoint_dir={tmp_path / 'checkpoints'}"]
-    code, printed, err = _signal_during("summer-fall fae_cross_season epoch 2/6", args,
-                                        signal.SIGTERM)
+    args = [
+        *KILLABLE,
+        f"logdir={tmp_path / 'runs'}",
+        f"train.checkpoint_dir={tmp_path / 'checkpoints'}",
+    ]
+    code, printed, err = _signal_during(
+        "summer-fall fae_cross_season epoch 2/6", args, signal.SIGTERM
+    )
     assert code == 128 + signal.SIGTERM, (printed[-2000:], err)
     (line,) = err.strip().splitlines()
     assert line.startswith("interrupted: 1 finished cell(s) are saved in "), line
@@ -130,8 +152,13 @@ def test_the_same_seed_gives_the_same_table(small_sweep, tmp_path):
 
 def test_another_seed_gives_another_route_and_other_initial_weights(small_sweep, tmp_path):
     first, _ = small_sweep
-    proc = run_cli(*SMALL, "seed=1", "season_pairs=summer-fall", "methods=[raw,fae]",
-                   f"logdir={tmp_path / 'runs'}")  # fmt: skip
+    proc = run_cli(
+        *SMALL,
+        "seed=1",
+        "season_pairs=summer-fall",
+        "methods=[raw,fae]",
+        f"logdir={tmp_path / 'runs'}",
+    )
     assert proc.returncode == 0, proc.stderr
     other = _cells(read_results(tmp_path / "runs" / "results.csv"))
     same_seed = _cells(read_results(first / "results.csv"))
@@ -143,9 +170,11 @@ def test_another_seed_gives_another_route_and_other_initial_weights(small_sweep,
     assert not np.allclose(seed_0["encoder"]["kernel"], seed_1["encoder"]["kernel"])
 
 
-HOLD_LOCK = ("import sys, time; from vpr_jax.logdir import lock_logdir; "
-             "lock_logdir(__import__('pathlib').Path(sys.argv[1])); print('held', flush=True); "
-             "time.sleep(600)")
+HOLD_LOCK = (
+    "import sys, time; from vpr_jax.logdir import lock_logdir; "
+    "lock_logdir(__import__('pathlib').Path(sys.argv[1])); print('held', flush=True); "
+    "time.sleep(600)"
+)
 
 
 def test_one_sweep_per_logdir_and_the_lock_dies_with_its_holder(tmp_path):
@@ -154,9 +183,13 @@ def test_one_sweep_per_logdir_and_the_lock_dies_with_its_holder(tmp_path):
     assert run_cli(*args).returncode == 0
     assert not (logdir / ".incomplete").exists()  # a finished sweep leaves nothing behind
     before = (logdir / "results.csv").read_bytes()
-    holder = subprocess.Popen([sys.executable, "-c", HOLD_LOCK, str(logdir)], cwd=REPO,
-                              env={**os.environ, "PYTHONPATH": str(REPO)},
-                              stdout=subprocess.PIPE, text=True)  # fmt: skip
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLD_LOCK, str(logdir)],
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "held"
         second = run_cli(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
@@ -172,8 +205,7 @@ def test_one_sweep_per_logdir_and_the_lock_dies_with_its_holder(tmp_path):
     third = run_cli(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
     assert third.returncode == 0, third.stderr
     rows = read_results(logdir / "results.csv")
-    assert sorted((r.method, r.removed_pcs) for r in rows) == [("pca", 0), ("pca", 5),
-                                                                ("raw", 0)]
+    assert sorted((r.method, r.removed_pcs) for r in rows) == [("pca", 0), ("pca", 5), ("raw", 0)]
     assert not (logdir / ".incomplete").exists()
 
 
@@ -181,12 +213,22 @@ def test_logdirs_of_one_name_cannot_train_into_the_same_checkpoint_folder(tmp_pa
     """runs/a/quick and runs/b/quick both map to checkpoints/quick/...: while one trains a
     model the other stops with one line instead of writing the same checkpoints."""
     checkpoints = tmp_path / "checkpoints"
-    args = [*SMALL, "methods=[fae]", "fae.objective=reconstruct", "season_pairs=summer-fall",
-            "fae.epochs=1", f"train.checkpoint_dir={checkpoints}"]
+    args = [
+        *SMALL,
+        "methods=[fae]",
+        "fae.objective=reconstruct",
+        "season_pairs=summer-fall",
+        "fae.epochs=1",
+        f"train.checkpoint_dir={checkpoints}",
+    ]
     model = checkpoints / "quick" / "summer-fall" / "fae"
-    holder = subprocess.Popen([sys.executable, "-c", HOLD_LOCK, str(model)], cwd=REPO,
-                              env={**os.environ, "PYTHONPATH": str(REPO)},
-                              stdout=subprocess.PIPE, text=True)  # fmt: skip
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLD_LOCK, str(model)],
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "held"
         proc = run_cli(*args, f"logdir={tmp_path / 'b' / 'quick'}")
@@ -215,8 +257,9 @@ def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
     again = run_cli(*args)
     assert again.returncode == 0, again.stderr
     rows = read_results(logdir / "results.csv")
-    assert len(rows) == 3 * 4 and len({(r.season_pair, r.method, r.removed_pcs)
-                                       for r in rows}) == 12  # fmt: skip
+    assert (
+        len(rows) == 3 * 4 and len({(r.season_pair, r.method, r.removed_pcs) for r in rows}) == 12
+    )
     kept = {r.run: r for r in rows}
     for row in saved:  # the cells saved before the fault were not redone (only which row
         assert kept[row.run]._replace(selected=0) == row._replace(selected=0)  # is selected)
@@ -230,17 +273,30 @@ def _limited(args: list[str], kib: int) -> subprocess.CompletedProcess:
     full disk, since the shell ignores SIGXFSZ for the sweep it starts. A shell, not
     preexec_fn: forking this JAX process could deadlock."""
     sweep = shlex.join([sys.executable, "-m", "experiments.sweep", *args])
-    return subprocess.run(["bash", "-c", f"ulimit -f {kib}; trap '' XFSZ; exec {sweep}"],
-                          cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
-                          capture_output=True, text=True)  # fmt: skip
+    return subprocess.run(
+        ["bash", "-c", f"ulimit -f {kib}; trap '' XFSZ; exec {sweep}"],
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        capture_output=True,
+        text=True,
+    )
 
 
 def test_a_checkpoint_that_cannot_be_written_is_one_line_and_the_rerun_completes(tmp_path):
     logdir, models = tmp_path / "runs", tmp_path / "models"
-    args = ["data.n_frames=400", "split.n_train=150", "split.n_test=60", "split.gap=10",
-            "methods=[raw,fae]", "season_pairs=summer-fall", "fae.objective=reconstruct",
-            "fae.hidden=32", "fae.epochs=1", f"logdir={logdir}",
-            f"train.checkpoint_dir={models}"]  # fmt: skip
+    args = [
+        "data.n_frames=400",
+        "split.n_train=150",
+        "split.n_test=60",
+        "split.gap=10",
+        "methods=[raw,fae]",
+        "season_pairs=summer-fall",
+        "fae.objective=reconstruct",
+        "fae.hidden=32",
+        "fae.epochs=1",
+        f"logdir={logdir}",
+        f"train.checkpoint_dir={models}",
+    ]
     # TensorBoard runs stay under 100 KiB; the FAE's optimizer state is a file of ~1.1 MB,
     # which orbax (TensorStore, in its own threads) fails to write.
     proc = _limited(args, 600)
@@ -262,8 +318,12 @@ def test_a_full_disk_is_one_line_and_the_same_command_completes_once_space_is_fr
     """A real full file system: a 400 KB tmpfs (root only), grown to 20 MB afterwards."""
     mount = tmp_path / "small_disk"
     mount.mkdir()
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs",
-                                            str(mount)], capture_output=True).returncode:
+    if (
+        os.geteuid() != 0
+        or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs", str(mount)], capture_output=True
+        ).returncode
+    ):
         pytest.skip("mounting a tmpfs needs root")
     try:
         args = [*SMALL, "methods=[raw,pca]", "removed_pcs=[0,5,20]", f"logdir={mount / 'runs'}"]

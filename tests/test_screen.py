@@ -14,8 +14,7 @@ from vpr_jax.methods import degenerate_warning
 
 def _route(n=40, seed=0):
     rng = np.random.default_rng(seed)
-    images = {s: rng.uniform(0.2, 0.8, (n, 32, 64)).astype(np.float32)
-              for s in ("summer", "fall")}
+    images = {s: rng.uniform(0.2, 0.8, (n, 32, 64)).astype(np.float32) for s in ("summer", "fall")}
     return Route(np.arange(100, 100 + 2 * n, 2), images)
 
 

@@ -67,9 +67,13 @@ def test_the_uniqueness_score_ranks_true_matches_first():
 
 @pytest.mark.parametrize(
     "ds,window,unique,vels,block",
-    [(2, 10, 10, (0.8, 0.9, 1.0, 1.1, 1.2), None), (5, 0, 4, (1.0,), 7),
-     (10, 10, 10, (0.8, 0.9, 1.0, 1.1, 1.2), 16), (11, 6, 0, (0.5, 1.5), 40),
-     (20, 10, 10, (0.8, 1.0, 1.2), 3)],
+    [
+        (2, 10, 10, (0.8, 0.9, 1.0, 1.1, 1.2), None),
+        (5, 0, 4, (1.0,), 7),
+        (10, 10, 10, (0.8, 0.9, 1.0, 1.1, 1.2), 16),
+        (11, 6, 0, (0.5, 1.5), 40),
+        (20, 10, 10, (0.8, 1.0, 1.2), 3),
+    ],
 )
 def test_equals_the_numpy_search(ds, window, unique, vels, block):
     rng = np.random.default_rng(ds)

@@ -36,8 +36,13 @@ def _free_port() -> int:
 
 @pytest.fixture(scope="module")
 def checks():
-    proc = subprocess.run([sys.executable, str(REPO / "tests" / "sharded_checks.py")],
-                          cwd=REPO, env=_env(**EIGHT), capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, str(REPO / "tests" / "sharded_checks.py")],
+        cwd=REPO,
+        env=_env(**EIGHT),
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -88,12 +93,20 @@ def _same_rows(a: list[dict], b: list[dict]) -> None:
 
 def test_the_sweep_on_eight_devices_equals_the_single_device_sweep(small_sweep, tmp_path):
     logdir, _ = small_sweep
-    proc = run_cli(*SMALL, "season_pairs=summer-fall", "methods=[raw,pca,diff_pca,ica,lda,fae]",
-                   f"logdir={tmp_path / 'runs'}", env=EIGHT)
+    proc = run_cli(
+        *SMALL,
+        "season_pairs=summer-fall",
+        "methods=[raw,pca,diff_pca,ica,lda,fae]",
+        f"logdir={tmp_path / 'runs'}",
+        env=EIGHT,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "mesh: 8 cpu devices" in proc.stdout
-    single = [r for r in read_results(logdir / "results.csv")
-              if r.season_pair == "summer-fall" and r.method != "cae"]
+    single = [
+        r
+        for r in read_results(logdir / "results.csv")
+        if r.season_pair == "summer-fall" and r.method != "cae"
+    ]
     _same_rows(read_results(tmp_path / "runs" / "results.csv"), single)
 
 
@@ -102,9 +115,16 @@ def _run_together(commands: list[list[str]], logs: Path, **env: str) -> None:
     in a collective for ever, so the rest are killed as soon as one exits non-zero."""
     logs.mkdir(parents=True, exist_ok=True)
     errs = [open(logs / f"{i}.err", "w") for i in range(len(commands))]  # noqa: SIM115
-    procs = [subprocess.Popen([sys.executable, *args], cwd=REPO, env=_env(**env),
-                              stdout=subprocess.DEVNULL, stderr=err)
-             for args, err in zip(commands, errs, strict=True)]  # fmt: skip
+    procs = [
+        subprocess.Popen(
+            [sys.executable, *args],
+            cwd=REPO,
+            env=_env(**env),
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+        )
+        for args, err in zip(commands, errs, strict=True)
+    ]
     while any(p.poll() is None for p in procs):
         if any(p.poll() not in (None, 0) for p in procs):
             for p in procs:
@@ -112,16 +132,17 @@ def _run_together(commands: list[list[str]], logs: Path, **env: str) -> None:
         time.sleep(0.2)
     for err in errs:
         err.close()
-    report = "\n".join(f"process {i} exit {p.returncode}: {(logs / f'{i}.err').read_text()[-2000:]}"
-                       for i, p in enumerate(procs))  # fmt: skip
+    report = "\n".join(
+        f"process {i} exit {p.returncode}: {(logs / f'{i}.err').read_text()[-2000:]}"
+        for i, p in enumerate(procs)
+    )
     assert all(p.returncode == 0 for p in procs), report
 
 
 def test_two_processes_on_loopback_compute_one_sharded_similarity(tmp_path):
     port, out = _free_port(), tmp_path / "matches.npz"
     worker = str(REPO / "tests" / "loopback_worker.py")
-    _run_together([[worker, str(port), "2", str(i), str(out)] for i in range(2)],
-                  tmp_path / "logs")
+    _run_together([[worker, str(port), "2", str(i), str(out)] for i in range(2)], tmp_path / "logs")
     with np.load(out) as z:
         assert int(z["devices"]) == 4 and int(z["processes"]) == 2
         sim = numpy_cosine(z["query"], z["db"])
@@ -133,21 +154,37 @@ def test_two_processes_on_loopback_compute_one_sharded_similarity(tmp_path):
 # The seed's objective only: a tiny FAE trained on eight places a step over four devices of
 # two processes drifts further from the one-process run than the tolerance below allows
 # (gloo's reductions round differently); the eight-device test above covers cross_season.
-TINY = ["data.n_frames=400", "split.n_train=100", "split.n_test=60", "split.gap=10",
-        "methods=[raw,pca,fae]", "removed_pcs=[0,5]", "season_pairs=summer-fall",
-        "fae.hidden=32", "fae.epochs=2", "fae.objective=reconstruct", "train.batch_size=16"]
+TINY = [
+    "data.n_frames=400",
+    "split.n_train=100",
+    "split.n_test=60",
+    "split.gap=10",
+    "methods=[raw,pca,fae]",
+    "removed_pcs=[0,5]",
+    "season_pairs=summer-fall",
+    "fae.hidden=32",
+    "fae.epochs=2",
+    "fae.objective=reconstruct",
+    "train.batch_size=16",
+]
 
 
 def test_a_sweep_over_two_processes_equals_one_process_and_only_process_0_writes(tmp_path):
     one = run_cli(*TINY, f"logdir={tmp_path / 'one'}")
     assert one.returncode == 0, one.stderr
     port, logdir = _free_port(), tmp_path / "two"
-    args = ["-m", "experiments.sweep", *TINY, f"logdir={logdir}", "mesh.distributed=true",
-            f"mesh.coordinator=127.0.0.1:{port}", "mesh.num_processes=2",
-            f"train.checkpoint_dir={tmp_path / 'ck'}"]  # fmt: skip
+    args = [
+        "-m",
+        "experiments.sweep",
+        *TINY,
+        f"logdir={logdir}",
+        "mesh.distributed=true",
+        f"mesh.coordinator=127.0.0.1:{port}",
+        "mesh.num_processes=2",
+        f"train.checkpoint_dir={tmp_path / 'ck'}",
+    ]
     devices = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    _run_together([[*args, f"mesh.process_id={i}"] for i in range(2)], tmp_path / "logs",
-                  **devices)
+    _run_together([[*args, f"mesh.process_id={i}"] for i in range(2)], tmp_path / "logs", **devices)
     _same_rows(read_results(logdir / "results.csv"), read_results(tmp_path / "one" / "results.csv"))
     assert len(read_results(logdir / "results.csv")) == 4  # written once, not once per process
     assert (tmp_path / "ck" / "two" / "summer-fall" / "fae").is_dir()

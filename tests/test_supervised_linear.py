@@ -45,8 +45,7 @@ def test_diff_pca_directions_are_the_principal_directions_of_the_season_differen
     np.testing.assert_allclose(state.explained_variance, eigvals, rtol=2e-3)
     cosines = np.abs(np.sum(np.asarray(state.components, np.float64) * eigvecs.T, axis=1))
     np.testing.assert_allclose(cosines, 1.0, atol=2e-3)
-    np.testing.assert_allclose(state.mean, np.concatenate([_flat(a), _flat(b)]).mean(0),
-                               atol=1e-5)  # fmt: skip
+    np.testing.assert_allclose(state.mean, np.concatenate([_flat(a), _flat(b)]).mean(0), atol=1e-5)
 
 
 @pytest.mark.parametrize("n", [300, 40])
@@ -65,11 +64,16 @@ def test_diff_pca_suffix_cosine_is_the_cosine_of_each_count():
     a, b = _aligned(200)
     state = diff_pca.fit_diff_pca(a, b, 6)
     starts = (0, 2, 4, 6)
-    sims = suffix_cosine(diff_pca.suffix_descriptors(state, b[:30]),
-                         diff_pca.suffix_descriptors(state, a[:50]), starts)  # fmt: skip
+    sims = suffix_cosine(
+        diff_pca.suffix_descriptors(state, b[:30]),
+        diff_pca.suffix_descriptors(state, a[:50]),
+        starts,
+    )
     for i, k in enumerate(starts):
-        ref = numpy_cosine(np.asarray(diff_pca.encode(state, b[:30], k), np.float64),
-                           np.asarray(diff_pca.encode(state, a[:50], k), np.float64))
+        ref = numpy_cosine(
+            np.asarray(diff_pca.encode(state, b[:30], k), np.float64),
+            np.asarray(diff_pca.encode(state, a[:50], k), np.float64),
+        )
         np.testing.assert_allclose(sims[i], ref, atol=1e-5)
 
 
@@ -88,9 +92,19 @@ def test_diff_pca_removal_helps_where_the_change_is_strong():
     a, b = _aligned(300, seed=1)
     db, q = _aligned(100, seed=2)  # other places, the same kind of change
     state = diff_pca.fit_diff_pca(a, b, 6)
-    recall = [np.mean(np.argmax(numpy_cosine(np.asarray(diff_pca.encode(state, q, k)),
-                                             np.asarray(diff_pca.encode(state, db, k))),
-                                axis=1) == np.arange(100)) for k in (0, 6)]  # fmt: skip
+    recall = [
+        np.mean(
+            np.argmax(
+                numpy_cosine(
+                    np.asarray(diff_pca.encode(state, q, k)),
+                    np.asarray(diff_pca.encode(state, db, k)),
+                ),
+                axis=1,
+            )
+            == np.arange(100)
+        )
+        for k in (0, 6)
+    ]
     assert recall[1] > recall[0] + 0.2, recall
 
 
@@ -125,8 +139,12 @@ def test_lda_equals_the_numpy_reference(shrinkage):
     reference = numpy_lda(a, b, 20, shrinkage)
     ours_q, ours_d = np.asarray(lda.encode(state, b[:40])), np.asarray(lda.encode(state, a))
     # Signs and rotations inside equal eigenvalues are arbitrary; inner products are not.
-    np.testing.assert_allclose(ours_q @ ours_d.T, reference(b[:40]) @ reference(a).T,
-                               rtol=2e-3, atol=2e-3 * np.abs(ours_q @ ours_d.T).max())
+    np.testing.assert_allclose(
+        ours_q @ ours_d.T,
+        reference(b[:40]) @ reference(a).T,
+        rtol=2e-3,
+        atol=2e-3 * np.abs(ours_q @ ours_d.T).max(),
+    )
     assert ours_q.shape == (40, 20)
 
 
@@ -135,9 +153,11 @@ def test_lda_with_full_shrinkage_matches_like_the_pca_coordinates():
     fit = pca.fit_pca(np.concatenate([a, b]))
     state = lda.fit_lda(fit, a, b, 20, 1.0)
     coords = lambda x: np.asarray(pca.project(fit, x))[:, :20]  # noqa: E731
-    np.testing.assert_allclose(numpy_cosine(np.asarray(lda.encode(state, b)),
-                                            np.asarray(lda.encode(state, a))),
-                               numpy_cosine(coords(b), coords(a)), atol=1e-4)  # fmt: skip
+    np.testing.assert_allclose(
+        numpy_cosine(np.asarray(lda.encode(state, b)), np.asarray(lda.encode(state, a))),
+        numpy_cosine(coords(b), coords(a)),
+        atol=1e-4,
+    )
 
 
 def test_lda_whitening_makes_the_within_place_scatter_white():

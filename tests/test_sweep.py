@@ -49,11 +49,17 @@ def test_results_table_has_one_row_per_cell(small_sweep):
     # Exactly one selected row per pair x method x objective (x ds): the best on validation.
     groups = {(r.season_pair, r.method, r.objective, r.ds) for r in rows}
     chosen = [r for r in rows if r.selected]
-    assert len(chosen) == len(groups) and {(r.season_pair, r.method, r.objective, r.ds)
-                                           for r in chosen} == groups  # fmt: skip
+    assert (
+        len(chosen) == len(groups)
+        and {(r.season_pair, r.method, r.objective, r.ds) for r in chosen} == groups
+    )
     for r in chosen:
-        rivals = [o for o in rows if (o.season_pair, o.method, o.objective, o.ds)
-                  == (r.season_pair, r.method, r.objective, r.ds)]  # fmt: skip
+        rivals = [
+            o
+            for o in rows
+            if (o.season_pair, o.method, o.objective, o.ds)
+            == (r.season_pair, r.method, r.objective, r.ds)
+        ]
         best = max((o.val_recall_at_1, o.val_auc_pr) for o in rivals)
         assert (r.val_recall_at_1, r.val_auc_pr) == best
     # One plain line per finished cell, whatever the terminal.
@@ -93,16 +99,23 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
             assert (image.height, image.width) == (2 * 32 + 1, 4 * 64 + 3)
         content = ea.PluginTagToContent("hparams")
         info = plugin_data_pb2.HParamsPluginData.FromString(
-            content["_hparams_/session_start_info"]).session_start_info
+            content["_hparams_/session_start_info"]
+        ).session_start_info
         assert info.hparams["season_pair"].string_value == row.season_pair
         assert info.hparams["objective"].string_value == row.objective
         assert info.hparams["removed_pcs"].number_value == row.removed_pcs
         assert info.hparams["ds"].number_value == row.ds == 1
     root = read_run(logdir)
     experiment = plugin_data_pb2.HParamsPluginData.FromString(
-        root.PluginTagToContent("hparams")["_hparams_/experiment"]).experiment
-    assert {h.name for h in experiment.hparam_infos} == {"season_pair", "method", "objective",
-                                                         "removed_pcs", "ds"}
+        root.PluginTagToContent("hparams")["_hparams_/experiment"]
+    ).experiment
+    assert {h.name for h in experiment.hparam_infos} == {
+        "season_pair",
+        "method",
+        "objective",
+        "removed_pcs",
+        "ds",
+    }
     assert "metrics/recall_at_1" in {m.name.tag for m in experiment.metric_infos}
 
 
@@ -135,8 +148,11 @@ def test_summaries_and_figures_are_written(small_sweep):
     assert sections[0].startswith("## Each method at the setting chosen on the validation")
     assert "optimistic" in sections[1]
     headline = table.split(sections[0])[1].split(sections[1])[0]
-    labels = [line.split("|")[-2].strip() for line in headline.splitlines()
-              if line.startswith("| ") and "season_pair" not in line]  # fmt: skip
+    labels = [
+        line.split("|")[-2].strip()
+        for line in headline.splitlines()
+        if line.startswith("| ") and "season_pair" not in line
+    ]
     assert len(labels) == 3 * 9  # a selected row per pair, method and objective
     assert labels.count("baseline") == 3
     assert set(labels) <= {"baseline", "better", "worse", "no clear difference"}
@@ -161,7 +177,8 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
     lines = (logdir / "results.csv").read_text().splitlines()
     keep_runs = {r.run for r in kept}
     (logdir / "results.csv").write_text(
-        "\n".join([lines[0]] + [ln for ln in lines[1:] if ln.split(",")[-1] in keep_runs]) + "\n")
+        "\n".join([lines[0]] + [ln for ln in lines[1:] if ln.split(",")[-1] in keep_runs]) + "\n"
+    )
     # The models trained by the first run are restored, not retrained.
     checkpoints = finished.parent / "checkpoints"  # the first run's; both logdirs are "runs"
     proc = run_cli(*SMALL, f"logdir={logdir}", f"train.checkpoint_dir={checkpoints}")
@@ -194,8 +211,9 @@ def test_named_pairs_select_database_and_query_seasons(tmp_path):
 
 def test_pixel_output_gives_the_same_metrics(small_sweep, tmp_path):
     logdir, _ = small_sweep
-    proc = run_cli(*SMALL, "season_pairs=summer-fall", "methods=pca", "pca.output=pixels",
-                   f"logdir={tmp_path}")
+    proc = run_cli(
+        *SMALL, "season_pairs=summer-fall", "methods=pca", "pca.output=pixels", f"logdir={tmp_path}"
+    )
     assert proc.returncode == 0, proc.stderr
     coeff = {r.run: r for r in read_results(logdir / "results.csv")}
     for r in read_results(tmp_path / "results.csv"):
@@ -210,8 +228,13 @@ def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path)
 
     logdir = tmp_path / "sections"
     split_keys = ["split.test_sections=2", "split.n_test=60", "split.gap=20", "split.database=all"]
-    proc = run_cli(*[k for k in SMALL if not k.startswith("split.")], *split_keys,
-                   "methods=[raw]", "season_pairs=summer-fall", f"logdir={logdir}")  # fmt: skip
+    proc = run_cli(
+        *[k for k in SMALL if not k.startswith("split.")],
+        *split_keys,
+        "methods=[raw]",
+        "season_pairs=summer-fall",
+        f"logdir={logdir}",
+    )
     assert proc.returncode == 0, proc.stderr
     (row,) = read_results(logdir / "results.csv")
     # Oracle: numpy brute force over every frame of the database season.
@@ -248,7 +271,8 @@ def test_each_pair_has_one_summary_run_of_its_selected_cells(small_sweep):
         ea = read_run(logdir / "summary" / pair)
         labels = [model_name(r.method, r.objective) for r in chosen]
         assert sorted(t for t in ea.Tags()["tensors"] if t.startswith("pr_curve/")) == sorted(
-            f"pr_curve/{label}" for label in labels)
+            f"pr_curve/{label}" for label in labels
+        )
         compared = [e.value for e in ea.Scalars("compare/recall_at_1")]
         assert [e.step for e in ea.Scalars("compare/recall_at_1")] == list(range(len(chosen)))
         for step, (row, label) in enumerate(zip(chosen, labels, strict=True)):
@@ -260,5 +284,7 @@ def test_each_pair_has_one_summary_run_of_its_selected_cells(small_sweep):
             # the same PR curve as the cell's own run
             (mine,) = ea.Tensors(f"pr_curve/{label}")
             (cells,) = read_run(logdir / row.run).Tensors("pr_curve")
-            np.testing.assert_array_equal(tensor_util.make_ndarray(mine.tensor_proto),
-                                          tensor_util.make_ndarray(cells.tensor_proto))
+            np.testing.assert_array_equal(
+                tensor_util.make_ndarray(mine.tensor_proto),
+                tensor_util.make_ndarray(cells.tensor_proto),
+            )

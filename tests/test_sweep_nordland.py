@@ -10,8 +10,14 @@ from vpr_jax.results import read_results
 
 SEASONS = ("summer", "fall")
 N_FRAMES = 90
-SPLIT = ["split.n_train=50", "split.n_test=30", "split.gap=4", "removed_pcs=[0,3]",
-         "data.seasons=[summer,fall]", "methods=[raw,pca]"]  # the readers are under test
+SPLIT = [
+    "split.n_train=50",
+    "split.n_test=30",
+    "split.gap=4",
+    "removed_pcs=[0,3]",
+    "data.seasons=[summer,fall]",
+    "methods=[raw,pca]",
+]  # the readers are under test
 
 
 def _frames(season):
@@ -20,12 +26,12 @@ def _frames(season):
 
 def test_image_release_folder_runs_through_the_cli(tmp_path):
     root = write_release(tmp_path / "nordland", {s: _frames(s) for s in SEASONS})
-    proc = run_cli("data.source=nordland_images", f"data.root={root}", *SPLIT,
-                   f"logdir={tmp_path / 'runs'}")
+    proc = run_cli(
+        "data.source=nordland_images", f"data.root={root}", *SPLIT, f"logdir={tmp_path / 'runs'}"
+    )
     assert proc.returncode == 0, proc.stderr
     rows = read_results(tmp_path / "runs" / "results.csv")
-    assert {(r.method, r.removed_pcs) for r in rows} == {("raw", 0), ("pca", 0),
-                                                              ("pca", 3)}
+    assert {(r.method, r.removed_pcs) for r in rows} == {("raw", 0), ("pca", 0), ("pca", 3)}
     assert all(r.n_train == 2 * 41 and r.n_test == 30 for r in rows)  # 50 less 5 val, gap 4
     assert all(r.recall_at_1 > 0 for r in rows)
 
@@ -34,15 +40,21 @@ def test_season_videos_run_through_the_cli_and_are_cached(tmp_path):
     root, fps = tmp_path / "videos", 4
     root.mkdir()
     for season in SEASONS:
-        writer = cv2.VideoWriter(str(root / f"nordland_{season}.avi"),
-                                 cv2.VideoWriter_fourcc(*"MJPG"), fps, (128, 64))
+        writer = cv2.VideoWriter(
+            str(root / f"nordland_{season}.avi"), cv2.VideoWriter_fourcc(*"MJPG"), fps, (128, 64)
+        )
         for img in _frames(season):
             big = cv2.resize(img, (128, 64), interpolation=cv2.INTER_NEAREST)
             for _ in range(fps):  # one place per second of video
                 writer.write(cv2.cvtColor(big, cv2.COLOR_GRAY2BGR))
         writer.release()
-    args = ["data.source=nordland_videos", f"data.root={root}",
-            f"data.cache_dir={tmp_path / 'cache'}", *SPLIT, "methods=raw"]
+    args = [
+        "data.source=nordland_videos",
+        f"data.root={root}",
+        f"data.cache_dir={tmp_path / 'cache'}",
+        *SPLIT,
+        "methods=raw",
+    ]
     proc = run_cli(*args, f"logdir={tmp_path / 'runs'}")
     assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "cache").iterdir())) == 2

@@ -16,10 +16,19 @@ from vpr_jax.metrics import SCALAR_NAMES
 from vpr_jax.results import COLUMNS, read_results
 
 METRICS = SCALAR_NAMES
-ARGS = ["data.source=nordland_images", "split.n_train=200", "split.gap=10", "split.n_test=200",
-        "data.seasons=[summer,fall]", "season_pairs=summer-fall", "methods=[raw,pca]",
-        "removed_pcs=[0,5]", "preprocess=patchnorm", "sequence.enabled=true",
-        "sequence.ds=[1,10]"]
+ARGS = [
+    "data.source=nordland_images",
+    "split.n_train=200",
+    "split.gap=10",
+    "split.n_test=200",
+    "data.seasons=[summer,fall]",
+    "season_pairs=summer-fall",
+    "methods=[raw,pca]",
+    "removed_pcs=[0,5]",
+    "preprocess=patchnorm",
+    "sequence.enabled=true",
+    "sequence.ds=[1,10]",
+]
 BRIGHTER = 40  # grey levels added to every query (fall) image
 
 
@@ -30,8 +39,10 @@ def releases(tmp_path_factory):
     base = {s: np.rint(im * 200).astype(np.uint8) for s, im in route.images.items()}
     roots = {}
     for name, shift in (("base", 0), ("brighter", BRIGHTER)):
-        shifted = {s: frames + np.uint8(shift if s == "fall" else 0)  # <= 240: no clip
-                   for s, frames in base.items()}
+        shifted = {
+            s: frames + np.uint8(shift if s == "fall" else 0)  # <= 240: no clip
+            for s, frames in base.items()
+        }
         roots[name] = write_release(tmp_path_factory.mktemp(name) / "data", shifted)
     return roots
 
@@ -53,8 +64,9 @@ def test_every_method_runs_at_every_ds_and_sequences_help(base_sweep):
     logdir, rows, proc = base_sweep
     assert "patch normalisation, 8x8 patches" in proc.stdout
     cells = {(r.method, r.removed_pcs, r.ds): r for r in rows}
-    assert set(cells) == {(m, k, ds) for m, k in (("raw", 0), ("pca", 0), ("pca", 5))
-                          for ds in (1, 10)}
+    assert set(cells) == {
+        (m, k, ds) for m, k in (("raw", 0), ("pca", 0), ("pca", 5)) for ds in (1, 10)
+    }
     for (method, k, ds), row in cells.items():
         if ds == 10:  # on a route, sequences of 10 beat single images for every method
             assert row.recall_at_1 > cells[(method, k, 1)].recall_at_1, (method, k)
@@ -71,8 +83,9 @@ def test_every_method_runs_at_every_ds_and_sequences_help(base_sweep):
     assert "| ds |" in (logdir / "results.md").read_text()
 
 
-def test_patch_normalisation_makes_results_blind_to_query_brightness(releases, base_sweep,
-                                                                     tmp_path):
+def test_patch_normalisation_makes_results_blind_to_query_brightness(
+    releases, base_sweep, tmp_path
+):
     _, base_rows, _ = base_sweep
     rows, _ = _sweep(releases["brighter"], tmp_path / "runs")
     assert len(rows) == len(base_rows)
@@ -90,12 +103,13 @@ def test_a_longer_ds_extends_a_finished_sweep(releases, base_sweep, tmp_path):
     assert "resuming: 6 of 9 cells already in results.csv" in proc.stdout
     assert new_rows[:6] == rows  # untouched, in order
     assert {(r.run, r.ds) for r in new_rows[6:]} == {
-        ("summer-fall/raw_ds05", 5), ("summer-fall/pca_k000_ds05", 5),
-        ("summer-fall/pca_k005_ds05", 5)}
+        ("summer-fall/raw_ds05", 5),
+        ("summer-fall/pca_k000_ds05", 5),
+        ("summer-fall/pca_k005_ds05", 5),
+    }
 
 
-def test_a_results_table_written_before_the_ds_column_reads_as_single_images(
-        base_sweep, tmp_path):
+def test_a_results_table_written_before_the_ds_column_reads_as_single_images(base_sweep, tmp_path):
     logdir, rows, _ = base_sweep
     old = tmp_path / "results.csv"
     with open(logdir / "results.csv") as src, open(old, "w", newline="") as dst:
@@ -110,7 +124,11 @@ def test_a_results_table_written_before_the_ds_column_reads_as_single_images(
 def test_sequence_lengths_without_enabling_them_are_pointed_out(tmp_path):
     """A ds list while sequence matching is off would be silently single images: the run
     log says so (here, before the missing data folder stops the run)."""
-    proc = run_cli("data.source=nordland_images", f"data.root={tmp_path / 'absent'}",
-                   "sequence.ds=[1,5]", f"logdir={tmp_path / 'runs'}")
+    proc = run_cli(
+        "data.source=nordland_images",
+        f"data.root={tmp_path / 'absent'}",
+        "sequence.ds=[1,5]",
+        f"logdir={tmp_path / 'runs'}",
+    )
     assert proc.returncode == 2
     assert "sequence.ds=[1, 5] is ignored while sequence.enabled=false" in proc.stdout

@@ -60,8 +60,7 @@ def test_a_subset_in_any_order_renders_exactly_the_rows_of_the_whole():
     whole = render_season(np.arange(700), "winter", seed=1, traversal=2)
     rng = np.random.default_rng(0)
     for ids in (np.array([699, 3, 150, 3, 0]), rng.integers(0, 700, 257), np.array([411])):
-        np.testing.assert_array_equal(render_season(ids, "winter", seed=1, traversal=2),
-                                      whole[ids])
+        np.testing.assert_array_equal(render_season(ids, "winter", seed=1, traversal=2), whole[ids])
     assert render_season(np.array([], np.int64), "winter").shape == (0, 32, 64)
 
 
@@ -76,8 +75,9 @@ def test_route_is_frame_aligned_with_step():
     assert route.frame_ids.dtype == np.int64
     assert route.seasons == ("summer", "winter") and len(route) == 5
     for season in route.seasons:
-        np.testing.assert_array_equal(route.images[season],
-                                      render_season(route.frame_ids, season, seed=0))
+        np.testing.assert_array_equal(
+            route.images[season], render_season(route.frame_ids, season, seed=0)
+        )
 
 
 def test_neighbouring_frames_overlap_distant_ones_do_not():
@@ -96,12 +96,21 @@ def test_the_same_place_in_another_season_is_closer_than_another_place():
     fall = render_season(ids, "fall", seed=0).reshape(len(ids), -1)
     summer, fall = summer - summer.mean(axis=0), fall - fall.mean(axis=0)
     sim = (fall / np.linalg.norm(fall, axis=1, keepdims=True)) @ (
-        summer / np.linalg.norm(summer, axis=1, keepdims=True)).T
+        summer / np.linalg.norm(summer, axis=1, keepdims=True)
+    ).T
     assert np.diag(sim).mean() > np.median(sim) + 0.3
 
 
-@pytest.mark.parametrize("bad", [dict(season="autumn"), dict(season="Summer"), dict(seed=-1),
-                                 dict(traversal=1.5), dict(traversal=-1)])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(season="autumn"),
+        dict(season="Summer"),
+        dict(seed=-1),
+        dict(traversal=1.5),
+        dict(traversal=-1),
+    ],
+)
 def test_bad_render_arguments_are_user_errors(bad):
     args = dict(season="summer", seed=0, traversal=0) | bad
     with pytest.raises(UserError) as err:
@@ -114,8 +123,10 @@ def test_unknown_season_message_names_the_allowed_ones():
         synthetic_route(10, ("summer", "autumn"))
 
 
-@pytest.mark.parametrize("bad", [dict(n_frames=0), dict(n_frames=-5), dict(frame_step=0),
-                                 dict(n_frames=2.5), dict(seasons=())])
+@pytest.mark.parametrize(
+    "bad",
+    [dict(n_frames=0), dict(n_frames=-5), dict(frame_step=0), dict(n_frames=2.5), dict(seasons=())],
+)
 def test_bad_route_arguments_are_user_errors(bad):
     with pytest.raises(UserError):
         synthetic_route(**(dict(n_frames=10, seasons=("summer",)) | bad))
@@ -132,16 +143,31 @@ def test_bad_frame_ids_are_user_errors():
 
 def _contact_sheet(*args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    return subprocess.run([sys.executable, "-m", "experiments.contact_sheet", *args], cwd=REPO,
-                          env=env, capture_output=True, text=True)
+    return subprocess.run(
+        [sys.executable, "-m", "experiments.contact_sheet", *args],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
 
 
 def test_contact_sheet_command_writes_a_png(tmp_path):
     from experiments.contact_sheet import HEADER_HEIGHT, LABEL_WIDTH
 
     out = tmp_path / "sub" / "sheet.png"
-    proc = _contact_sheet("--out", str(out), "--n-places", "5", "--seasons", "summer,winter",
-                          "--scale", "2", "--seed", "1")
+    proc = _contact_sheet(
+        "--out",
+        str(out),
+        "--n-places",
+        "5",
+        "--seasons",
+        "summer,winter",
+        "--scale",
+        "2",
+        "--seed",
+        "1",
+    )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == str(out)
     sheet = cv2.imread(str(out), cv2.IMREAD_GRAYSCALE)
@@ -152,8 +178,16 @@ def test_contact_sheet_command_writes_a_png(tmp_path):
     assert np.array_equal(block[::2, ::2], block[1::2, 1::2]) and block.std() > 10
 
 
-@pytest.mark.parametrize("args", [["--seasons", "autumn"], ["--scale", "x"], ["--n-places", "0"],
-                                  ["--bogus"], ["--out", "sheet.jpg"]])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--seasons", "autumn"],
+        ["--scale", "x"],
+        ["--n-places", "0"],
+        ["--bogus"],
+        ["--out", "sheet.jpg"],
+    ],
+)
 def test_contact_sheet_bad_arguments_print_one_line_and_exit_2(tmp_path, args):
     if "--out" not in args:
         args = [*args, "--out", str(tmp_path / "x.png")]

@@ -57,8 +57,9 @@ class StopAt:
 
 
 def _equal(a, b) -> bool:
-    return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b),
-                                                      strict=True))  # fmt: skip
+    return all(
+        np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    )
 
 
 def _train_steps(run_dir, tag="loss/train") -> list[int]:
@@ -79,16 +80,18 @@ def test_validation_loss_falls(data, spec):
 
 def test_checkpoint_round_trip_gives_identical_codes(data, tmp_path):
     train, val = data
-    result = fit_autoencoder(SPEC, train, val, jax.random.key(1), SETTINGS,
-                             checkpoint_dir=tmp_path / "fae")  # fmt: skip
+    result = fit_autoencoder(
+        SPEC, train, val, jax.random.key(1), SETTINGS, checkpoint_dir=tmp_path / "fae"
+    )
     encode, params = load_encoder(tmp_path / "fae")
     assert _equal(params, result.params)
     np.testing.assert_array_equal(
         encode(params, val), ae.make_encode(result.graphdef)(result.params, val)
     )
     # Run again: the finished model is restored, not retrained.
-    again = fit_autoencoder(SPEC, train, val, jax.random.key(1), SETTINGS,
-                            checkpoint_dir=tmp_path / "fae")  # fmt: skip
+    again = fit_autoencoder(
+        SPEC, train, val, jax.random.key(1), SETTINGS, checkpoint_dir=tmp_path / "fae"
+    )
     assert again.restored and _equal(again.params, result.params)
     assert again.epochs == result.epochs and again.train_seconds == pytest.approx(
         result.train_seconds, rel=1e-6
@@ -120,9 +123,7 @@ def test_an_interrupted_run_resumes_at_its_saved_epoch_and_ends_as_an_uninterrup
     assert resumed.best_val_loss == whole.best_val_loss
     # TensorBoard shows every step once: what the cut session logged after epoch 2 is purged.
     assert _train_steps(tb_dir) == list(range(1, whole.steps + 1))
-    assert _train_steps(tb_dir, "loss/validation") == [
-        steps_per_epoch * e for e in (1, 2, 3)
-    ]
+    assert _train_steps(tb_dir, "loss/validation") == [steps_per_epoch * e for e in (1, 2, 3)]
 
 
 def test_checkpoints_wait_checkpoint_every_s_but_the_last_epoch_is_always_saved(data, tmp_path):
@@ -155,14 +156,23 @@ def test_a_checkpoint_of_other_data_or_settings_is_refused(data, tmp_path):
     train, val = data
     one = TrainConfig(epochs=1, batch_size=32)
     folder = tmp_path / "m"
-    fit_autoencoder(SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder,
-                    identity={"seed": 4})  # fmt: skip
+    fit_autoencoder(
+        SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder, identity={"seed": 4}
+    )
     with pytest.raises(UserError, match="other data or settings"):
-        fit_autoencoder(SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder,
-                        identity={"seed": 5})  # fmt: skip
+        fit_autoencoder(
+            SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder, identity={"seed": 5}
+        )
     with pytest.raises(UserError, match="other data or settings"):
-        fit_autoencoder(ae.FAESpec(hidden=8), train, val, jax.random.key(4), one,
-                        checkpoint_dir=folder, identity={"seed": 4})  # fmt: skip
+        fit_autoencoder(
+            ae.FAESpec(hidden=8),
+            train,
+            val,
+            jax.random.key(4),
+            one,
+            checkpoint_dir=folder,
+            identity={"seed": 4},
+        )
 
 
 def test_an_fae_saved_before_input_centring_loads_as_it_was_trained(data, tmp_path):
@@ -172,8 +182,9 @@ def test_an_fae_saved_before_input_centring_loads_as_it_was_trained(data, tmp_pa
     train, val = data
     one = TrainConfig(epochs=1, batch_size=32)
     folder = tmp_path / "old_fae"
-    fit_autoencoder(ae.FAESpec(hidden=16, centre=0.0), train, val, jax.random.key(4), one,
-                    checkpoint_dir=folder)  # fmt: skip
+    fit_autoencoder(
+        ae.FAESpec(hidden=16, centre=0.0), train, val, jax.random.key(4), one, checkpoint_dir=folder
+    )
     for meta_file in folder.glob("*/meta/metadata"):  # as an older version wrote it
         meta = json.loads(meta_file.read_text())
         del meta["spec"]["centre"]
@@ -183,8 +194,9 @@ def test_an_fae_saved_before_input_centring_loads_as_it_was_trained(data, tmp_pa
     expected = np.maximum(val.reshape(len(val), -1) @ w + b, 0.0)
     np.testing.assert_allclose(encode(params, val), expected, rtol=1e-4, atol=1e-5)
     with pytest.raises(UserError, match="other data or settings"):
-        fit_autoencoder(ae.FAESpec(hidden=16), train, val, jax.random.key(4), one,
-                        checkpoint_dir=folder)  # fmt: skip
+        fit_autoencoder(
+            ae.FAESpec(hidden=16), train, val, jax.random.key(4), one, checkpoint_dir=folder
+        )
 
 
 # ------------------------------------------------------ checkpoints of the format before 2026-12
@@ -199,21 +211,31 @@ def format1(tmp_path):
     """A copy of the format-1 checkpoints (resuming writes into them) and their data."""
     shutil.copytree(FORMAT1, tmp_path / "format1")
     rng = np.random.default_rng(0)
-    return tmp_path / "format1", tail_validation(rng.random((80, 32, 64), dtype=np.float32),
-                                                  2, 0.25)
+    return tmp_path / "format1", tail_validation(
+        rng.random((80, 32, 64), dtype=np.float32), 2, 0.25
+    )
 
 
 def _close(a, b) -> bool:
     # Equal bits on the JAX that wrote them; another release may round differently.
-    return all(np.allclose(x, y, rtol=1e-4, atol=1e-6)
-               for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+    return all(
+        np.allclose(x, y, rtol=1e-4, atol=1e-6)
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    )
 
 
 def test_a_finished_format1_checkpoint_is_restored_and_loads_as_an_encoder(format1):
     folder, (train, val) = format1
     spec = ae.CAESpec((2,), (3,), 1)
-    restored = fit_autoencoder(spec, train, val, jax.random.key(7), FORMAT1_SETTINGS,
-                               checkpoint_dir=folder / "cae_done", identity=FORMAT1_IDENTITY)
+    restored = fit_autoencoder(
+        spec,
+        train,
+        val,
+        jax.random.key(7),
+        FORMAT1_SETTINGS,
+        checkpoint_dir=folder / "cae_done",
+        identity=FORMAT1_IDENTITY,
+    )
     assert restored.restored and restored.epochs == 3
     assert restored.steps == 3 * (len(train) // 20)
     trained_now = fit_autoencoder(spec, train, val, jax.random.key(7), FORMAT1_SETTINGS)
@@ -221,8 +243,9 @@ def test_a_finished_format1_checkpoint_is_restored_and_loads_as_an_encoder(forma
     assert restored.best_val_loss == pytest.approx(trained_now.best_val_loss, rel=1e-4)
     encode, params = load_encoder(folder / "cae_done")
     assert _equal(params, restored.params)
-    np.testing.assert_array_equal(encode(params, val),
-                                  ae.make_encode(trained_now.graphdef)(restored.params, val))
+    np.testing.assert_array_equal(
+        encode(params, val), ae.make_encode(trained_now.graphdef)(restored.params, val)
+    )
 
 
 def test_an_unfinished_format1_checkpoint_resumes_to_the_uninterrupted_result(format1):
@@ -230,17 +253,34 @@ def test_an_unfinished_format1_checkpoint_resumes_to_the_uninterrupted_result(fo
     spec = ae.FAESpec(hidden=2)
     encode, params = load_encoder(folder / "fae_epoch1")  # the best model after epoch 1
     w, b = np.asarray(params["encoder"]["kernel"]), np.asarray(params["encoder"]["bias"])
-    np.testing.assert_allclose(encode(params, val),
-                               np.maximum((val.reshape(len(val), -1) - 0.5) @ w + b, 0.0),
-                               rtol=1e-4, atol=1e-5)  # fmt: skip
-    resumed = fit_autoencoder(spec, train, val, jax.random.key(7), FORMAT1_SETTINGS,
-                              checkpoint_dir=folder / "fae_epoch1", identity=FORMAT1_IDENTITY)
+    np.testing.assert_allclose(
+        encode(params, val),
+        np.maximum((val.reshape(len(val), -1) - 0.5) @ w + b, 0.0),
+        rtol=1e-4,
+        atol=1e-5,
+    )
+    resumed = fit_autoencoder(
+        spec,
+        train,
+        val,
+        jax.random.key(7),
+        FORMAT1_SETTINGS,
+        checkpoint_dir=folder / "fae_epoch1",
+        identity=FORMAT1_IDENTITY,
+    )
     whole = fit_autoencoder(spec, train, val, jax.random.key(7), FORMAT1_SETTINGS)
     assert resumed.resumed_epoch == 1 and not resumed.restored
     assert resumed.epochs == whole.epochs == 3 and resumed.steps == whole.steps
     assert _close(resumed.params, whole.params)
     # Resuming wrote today's format; a rerun restores the finished model from it.
-    again = fit_autoencoder(spec, train, val, jax.random.key(7), FORMAT1_SETTINGS,
-                            checkpoint_dir=folder / "fae_epoch1", identity=FORMAT1_IDENTITY)
+    again = fit_autoencoder(
+        spec,
+        train,
+        val,
+        jax.random.key(7),
+        FORMAT1_SETTINGS,
+        checkpoint_dir=folder / "fae_epoch1",
+        identity=FORMAT1_IDENTITY,
+    )
     assert again.restored and _equal(again.params, resumed.params)
     assert (folder / "fae_epoch1" / "3" / "state").is_dir()

@@ -51,8 +51,9 @@ class Difference(NamedTuple):
 def resample_counts(n: int, block_length: int, resamples: int, seed: int) -> np.ndarray:
     """(resamples, n) int32: how often each of n queries is drawn in each resample."""
     if n < 1 or block_length < 1 or resamples < 1:
-        raise ValueError(f"need n, block_length, resamples >= 1, got {n}, {block_length}, "
-                         f"{resamples}")  # fmt: skip
+        raise ValueError(
+            f"need n, block_length, resamples >= 1, got {n}, {block_length}, {resamples}"
+        )
     length = min(block_length, n)
     n_blocks = -(-n // length)
     rng = np.random.default_rng(seed)
@@ -67,8 +68,13 @@ def weighted_recall_at_1(correct: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return counts @ np.asarray(correct, np.float64) / counts.sum(axis=1)
 
 
-def weighted_auc_pr(scores: np.ndarray, correct: np.ndarray, has_match: np.ndarray,
-                    counts: np.ndarray, pr_convention: str = "vpr_bench") -> np.ndarray:
+def weighted_auc_pr(
+    scores: np.ndarray,
+    correct: np.ndarray,
+    has_match: np.ndarray,
+    counts: np.ndarray,
+    pr_convention: str = "vpr_bench",
+) -> np.ndarray:
     """AUC-PR of each resample (``vpr_jax.metrics``' single-best-match curve, trapezoids
     over recall from the start point (0, 1)); counts of all ones give ``metrics``' value.
 
@@ -112,25 +118,40 @@ class CellIntervals(NamedTuple):
     auc_pr: Interval
 
 
-def cell_intervals(scores, correct, has_match, *, block_length: int, resamples: int,
-                   seed: int, pr_convention: str = "vpr_bench") -> CellIntervals:
+def cell_intervals(
+    scores,
+    correct,
+    has_match,
+    *,
+    block_length: int,
+    resamples: int,
+    seed: int,
+    pr_convention: str = "vpr_bench",
+) -> CellIntervals:
     """95% intervals of recall@1 and AUC-PR of one cell's queries (in route order)."""
     counts = resample_counts(len(scores), block_length, resamples, seed)
-    return CellIntervals(interval(weighted_recall_at_1(correct, counts)),
-                         interval(weighted_auc_pr(scores, correct, has_match, counts,
-                                                  pr_convention)))  # fmt: skip
+    return CellIntervals(
+        interval(weighted_recall_at_1(correct, counts)),
+        interval(weighted_auc_pr(scores, correct, has_match, counts, pr_convention)),
+    )
 
 
-def paired_recall_difference(correct: np.ndarray, baseline_correct: np.ndarray, *,
-                             block_length: int, resamples: int, seed: int) -> Difference:
+def paired_recall_difference(
+    correct: np.ndarray,
+    baseline_correct: np.ndarray,
+    *,
+    block_length: int,
+    resamples: int,
+    seed: int,
+) -> Difference:
     """recall@1 of a method minus the baseline's on the same queries (same order), with a
     95% interval from the same block resamples for both."""
     correct, baseline_correct = np.asarray(correct), np.asarray(baseline_correct)
     if correct.shape != baseline_correct.shape:
-        raise ValueError(f"paired cells need the same queries, got {correct.shape} and "
-                         f"{baseline_correct.shape}")  # fmt: skip
+        raise ValueError(
+            f"paired cells need the same queries, got {correct.shape} and {baseline_correct.shape}"
+        )
     counts = resample_counts(len(correct), block_length, resamples, seed)
-    diff = (weighted_recall_at_1(correct, counts)
-            - weighted_recall_at_1(baseline_correct, counts))  # fmt: skip
+    diff = weighted_recall_at_1(correct, counts) - weighted_recall_at_1(baseline_correct, counts)
     low, high = interval(diff)
     return Difference(float(np.mean(correct) - np.mean(baseline_correct)), low, high)

@@ -41,13 +41,19 @@ from vpr_jax.errors import UserError
 FORMAT = 2
 State = TypeVar("State", bound=NamedTuple)
 # Format 1 kept the training state's counters in its JSON meta, under these names.
-_FORMAT1_COUNTERS = {"best_val": "best_val_loss", "bad_epochs": "bad_epochs", "epoch": "epoch",
-                     "step": "step", "seconds": "train_seconds"}  # fmt: skip
+_FORMAT1_COUNTERS = {
+    "best_val": "best_val_loss",
+    "bad_epochs": "bad_epochs",
+    "epoch": "epoch",
+    "step": "step",
+    "seconds": "train_seconds",
+}
 
 
 def _abstract(tree):
     """Restore targets: arrays by shape and dtype; Python numbers as numpy scalars, so a
     float64 loss or an int64 counter comes back exact (not as a float32 device array)."""
+
     def leaf(x):
         if isinstance(x, int | float | np.number):
             return np.asarray(x)
@@ -101,19 +107,32 @@ def restore(directory: Path, like: State) -> tuple[State, dict]:
     with _manager(directory) as manager:
         step = _latest(manager, directory)
         if _format(manager, step) == FORMAT:
-            out = manager.restore(step, args=ocp.args.Composite(
-                state=ocp.args.StandardRestore(_abstract(like)), meta=ocp.args.JsonRestore()))
-            state = jax.tree.map(lambda x, y: type(y)(x) if isinstance(y, int | float) else x,
-                                 out.state, like)  # numpy scalars back to Python numbers
+            out = manager.restore(
+                step,
+                args=ocp.args.Composite(
+                    state=ocp.args.StandardRestore(_abstract(like)), meta=ocp.args.JsonRestore()
+                ),
+            )
+            state = jax.tree.map(
+                lambda x, y: type(y)(x) if isinstance(y, int | float) else x, out.state, like
+            )  # numpy scalars back to Python numbers
             return state, out.meta
         train_like = {"params": like.params, "opt_state": like.opt_state}
-        out = manager.restore(step, args=ocp.args.Composite(
-            train=ocp.args.StandardRestore(_abstract(train_like)),
-            model=ocp.args.StandardRestore(_abstract(like.best_params)),
-            meta=ocp.args.JsonRestore()))  # fmt: skip
+        out = manager.restore(
+            step,
+            args=ocp.args.Composite(
+                train=ocp.args.StandardRestore(_abstract(train_like)),
+                model=ocp.args.StandardRestore(_abstract(like.best_params)),
+                meta=ocp.args.JsonRestore(),
+            ),
+        )
         counters = {f: type(getattr(like, f))(out.meta[k]) for f, k in _FORMAT1_COUNTERS.items()}
-        return like._replace(params=out.train["params"], opt_state=out.train["opt_state"],
-                             best_params=out.model, **counters), out.meta  # fmt: skip
+        return like._replace(
+            params=out.train["params"],
+            opt_state=out.train["opt_state"],
+            best_params=out.model,
+            **counters,
+        ), out.meta
 
 
 def restore_model(directory: Path, params_like) -> Any:
@@ -121,13 +140,21 @@ def restore_model(directory: Path, params_like) -> Any:
     with _manager(directory) as manager:
         step = _latest(manager, directory)
         if _format(manager, step) == 1:
-            return manager.restore(step, args=ocp.args.Composite(
-                model=ocp.args.StandardRestore(_abstract(params_like)))).model  # fmt: skip
+            return manager.restore(
+                step,
+                args=ocp.args.Composite(model=ocp.args.StandardRestore(_abstract(params_like))),
+            ).model
         # Only the best parameters of the state item, read as host arrays.
         part = {"best_params": jax.tree.map(np.asarray, params_like)}
         restore_args = jax.tree.map(lambda _: ocp.RestoreArgs(restore_type=np.ndarray), part)
-        out = manager.restore(step, args=ocp.args.Composite(state=ocp.args.PyTreeRestore(
-            item=part, restore_args=restore_args, partial_restore=True)))  # fmt: skip
+        out = manager.restore(
+            step,
+            args=ocp.args.Composite(
+                state=ocp.args.PyTreeRestore(
+                    item=part, restore_args=restore_args, partial_restore=True
+                )
+            ),
+        )
         return jax.device_put(out.state["best_params"])
 
 
@@ -141,9 +168,13 @@ def save(directory: Path, step: int, state: NamedTuple, meta: dict) -> None:
     Path(directory).mkdir(parents=True, exist_ok=True)
     try:
         with _orbax_noise_held(), _manager(directory) as manager:
-            manager.save(step, args=ocp.args.Composite(
-                state=ocp.args.StandardSave(state),
-                meta=ocp.args.JsonSave({**meta, "format": FORMAT})))  # fmt: skip
+            manager.save(
+                step,
+                args=ocp.args.Composite(
+                    state=ocp.args.StandardSave(state),
+                    meta=ocp.args.JsonSave({**meta, "format": FORMAT}),
+                ),
+            )
             manager.wait_until_finished()
     except (ValueError, RuntimeError) as err:
         raise _os_error(err, directory) from None

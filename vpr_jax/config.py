@@ -50,10 +50,13 @@ def _check_objectives(obj: Any, group: str) -> None:
     chosen = list(obj.objective)
     _check(len(chosen) > 0, f"{group}.objective is empty: e.g. {group}.objective=cross_season")
     unknown = [o for o in chosen if o not in OBJECTIVES]
-    _check(not unknown, f"{group}.objective={chosen} names unknown {unknown}: choose from "
-           f"{', '.join(OBJECTIVES)}")
-    _check(len(set(chosen)) == len(chosen), f"{group}.objective={chosen} repeats one: name "
-           "each once")
+    _check(
+        not unknown,
+        f"{group}.objective={chosen} names unknown {unknown}: choose from {', '.join(OBJECTIVES)}",
+    )
+    _check(
+        len(set(chosen)) == len(chosen), f"{group}.objective={chosen} repeats one: name each once"
+    )
 
 
 @dataclass(frozen=True)
@@ -85,43 +88,72 @@ class DataConfig:
 
     def __post_init__(self):
         _as_tuple(self, "seasons")
-        _check(self.source in SOURCES, f"data.source={self.source} is unknown: use one of "
-               f"{', '.join(SOURCES)}")
-        _check(len(self.seasons) >= 2, "data.seasons needs at least two seasons, e.g. "
-               "data.seasons=[summer,fall]")
-        _check(len(set(self.seasons)) == len(self.seasons),
-               f"data.seasons={list(self.seasons)} repeats a season: name each once")
+        _check(
+            self.source in SOURCES,
+            f"data.source={self.source} is unknown: use one of {', '.join(SOURCES)}",
+        )
+        _check(
+            len(self.seasons) >= 2,
+            "data.seasons needs at least two seasons, e.g. data.seasons=[summer,fall]",
+        )
+        _check(
+            len(set(self.seasons)) == len(self.seasons),
+            f"data.seasons={list(self.seasons)} repeats a season: name each once",
+        )
         _check(self.n_frames >= 2, f"data.n_frames={self.n_frames} is too small: use >= 2")
         _check(self.frame_step >= 1, f"data.frame_step={self.frame_step} must be >= 1")
         _check(self.max_pixels >= 1, f"data.max_pixels={self.max_pixels} must be >= 1")
-        _check(0 <= self.constant_std < 0.5, f"data.constant_std={self.constant_std} is not "
-               "a pixel standard deviation in [0, 0.5): use e.g. 0.01")
-        _check(self.source == "synthetic" or self.root is not None,
-               f"data.source={self.source} needs data.root=PATH (the folder with the seasons)")
-        _check(self.radius_m > 0, f"data.radius_m={self.radius_m} must be positive: a "
-               "database image within that many metres of a query is correct, e.g. 25")
+        _check(
+            0 <= self.constant_std < 0.5,
+            f"data.constant_std={self.constant_std} is not "
+            "a pixel standard deviation in [0, 0.5): use e.g. 0.01",
+        )
+        _check(
+            self.source == "synthetic" or self.root is not None,
+            f"data.source={self.source} needs data.root=PATH (the folder with the seasons)",
+        )
+        _check(
+            self.radius_m > 0,
+            f"data.radius_m={self.radius_m} must be positive: a "
+            "database image within that many metres of a query is correct, e.g. 25",
+        )
         if self.frame_range is not None:
             _as_tuple(self, "frame_range")
-            _check(len(self.frame_range) == 2 and self.frame_range[0] <= self.frame_range[1],
-                   f"data.frame_range={list(self.frame_range)} is not [first, last]: e.g. "
-                   "data.frame_range=[202,35582]")
+            _check(
+                len(self.frame_range) == 2 and self.frame_range[0] <= self.frame_range[1],
+                f"data.frame_range={list(self.frame_range)} is not [first, last]: e.g. "
+                "data.frame_range=[202,35582]",
+            )
         if self.train_source is not None:
-            _check(self.source in BENCHMARK_SOURCES, f"data.train_source applies to "
-                   f"benchmarks ({', '.join(BENCHMARK_SOURCES)}): data.source={self.source} "
-                   "trains on its own route; drop data.train_source")
-            _check(self.train_source in ROUTE_SOURCES, f"data.train_source={self.train_source} "
-                   f"is not an aligned route: use one of {', '.join(ROUTE_SOURCES)}")
-            _check(self.train_source == "synthetic" or self.train_root is not None,
-                   f"data.train_source={self.train_source} needs data.train_root=PATH")
-            _check(len(self.seasons) == 2, f"data.train_source reads the two seasons to learn "
-                   f"from, data.seasons={list(self.seasons)}: name two, e.g. "
-                   "data.seasons=[summer,winter]")
+            _check(
+                self.source in BENCHMARK_SOURCES,
+                f"data.train_source applies to "
+                f"benchmarks ({', '.join(BENCHMARK_SOURCES)}): data.source={self.source} "
+                "trains on its own route; drop data.train_source",
+            )
+            _check(
+                self.train_source in ROUTE_SOURCES,
+                f"data.train_source={self.train_source} "
+                f"is not an aligned route: use one of {', '.join(ROUTE_SOURCES)}",
+            )
+            _check(
+                self.train_source == "synthetic" or self.train_root is not None,
+                f"data.train_source={self.train_source} needs data.train_root=PATH",
+            )
+            _check(
+                len(self.seasons) == 2,
+                f"data.train_source reads the two seasons to learn "
+                f"from, data.seasons={list(self.seasons)}: name two, e.g. "
+                "data.seasons=[summer,winter]",
+            )
 
         framed = ("nordland_images", "nordland_videos", "folders", "nordland_star")
         for key in ("frame_list", "frame_range"):
-            _check(self.source in framed or getattr(self, key) is None,
-                   f"data.{key} applies to Nordland sources only: drop it for "
-                   f"data.source={self.source}")
+            _check(
+                self.source in framed or getattr(self, key) is None,
+                f"data.{key} applies to Nordland sources only: drop it for "
+                f"data.source={self.source}",
+            )
 
     @property
     def aligned_training(self) -> bool:
@@ -152,11 +184,15 @@ class SplitConfig:
         _check(self.n_train >= 1, f"split.n_train={self.n_train} must be >= 1")
         _check(self.n_test >= 1, f"split.n_test={self.n_test} must be >= 1")
         _check(self.gap >= 0, f"split.gap={self.gap} must be >= 0")
-        _check(self.train_fraction is None or 0 < self.train_fraction < 1,
-               f"split.train_fraction={self.train_fraction} must lie strictly between 0 and 1")
+        _check(
+            self.train_fraction is None or 0 < self.train_fraction < 1,
+            f"split.train_fraction={self.train_fraction} must lie strictly between 0 and 1",
+        )
         _check(self.test_sections >= 0, f"split.test_sections={self.test_sections} must be >= 0")
-        _check(0 < self.val_fraction < 0.5,
-               f"split.val_fraction={self.val_fraction} must lie strictly between 0 and 0.5")
+        _check(
+            0 < self.val_fraction < 0.5,
+            f"split.val_fraction={self.val_fraction} must lie strictly between 0 and 0.5",
+        )
         _check(
             self.database in ("test", "all"),
             f"split.database={self.database} is unknown: use test or all",
@@ -169,10 +205,14 @@ class PCAConfig:
     output: str = "coefficients"  # coefficients | pixels (the seed's back-projection)
 
     def __post_init__(self):
-        _check(self.solver in ("auto", "covariance", "gram", "subspace"),
-               f"pca.solver={self.solver} is unknown: use auto, covariance, gram or subspace")
-        _check(self.output in ("coefficients", "pixels"),
-               f"pca.output={self.output} is unknown: use coefficients or pixels")
+        _check(
+            self.solver in ("auto", "covariance", "gram", "subspace"),
+            f"pca.solver={self.solver} is unknown: use auto, covariance, gram or subspace",
+        )
+        _check(
+            self.output in ("coefficients", "pixels"),
+            f"pca.output={self.output} is unknown: use coefficients or pixels",
+        )
 
 
 @dataclass(frozen=True)
@@ -211,8 +251,10 @@ class LDAConfig:
 
     def __post_init__(self):
         _check(self.n_components >= 1, f"lda.n_components={self.n_components} must be >= 1")
-        _check(0 <= self.shrinkage <= 1, f"lda.shrinkage={self.shrinkage} is not in [0, 1]: "
-               "use e.g. 0.1 (0: plain whitening)")
+        _check(
+            0 <= self.shrinkage <= 1,
+            f"lda.shrinkage={self.shrinkage} is not in [0, 1]: use e.g. 0.1 (0: plain whitening)",
+        )
 
 
 @dataclass(frozen=True)
@@ -232,8 +274,11 @@ class FAEConfig:
     def __post_init__(self):
         _check_objectives(self, "fae")
         _check(self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1")
-        _check(0 <= self.input_centre <= 1, f"fae.input_centre={self.input_centre} is not a "
-               "grey level in [0, 1]: use 0.5 (mid-grey) or 0 (the seed's layer)")
+        _check(
+            0 <= self.input_centre <= 1,
+            f"fae.input_centre={self.input_centre} is not a "
+            "grey level in [0, 1]: use 0.5 (mid-grey) or 0 (the seed's layer)",
+        )
         _check(self.epochs is None or self.epochs >= 1, f"fae.epochs={self.epochs} must be >= 1")
 
 
@@ -243,11 +288,19 @@ class FAEConfig:
 # calc: the CAE sized like CALC's encoder that the suite began with (5x5x64, 4x4x128, a
 # 8x16x8 = 1,024-value code, about 130 MFLOP), ten times slower to train on a CPU.
 CAE_MODELS = {
-    "fast": {"channels": (24, 48), "kernel_sizes": (3, 3), "code_channels": 32,
-             "space_to_depth": 2},
-    "calc": {"channels": (64, 128), "kernel_sizes": (5, 4), "code_channels": 8,
-             "space_to_depth": 1},
-}  # fmt: skip
+    "fast": {
+        "channels": (24, 48),
+        "kernel_sizes": (3, 3),
+        "code_channels": 32,
+        "space_to_depth": 2,
+    },
+    "calc": {
+        "channels": (64, 128),
+        "kernel_sizes": (5, 4),
+        "code_channels": 8,
+        "space_to_depth": 1,
+    },
+}
 
 
 @dataclass(frozen=True)
@@ -266,8 +319,10 @@ class CAEConfig:
 
     def __post_init__(self):
         _check_objectives(self, "cae")
-        _check(self.model in CAE_MODELS, f"cae.model={self.model} is unknown: use "
-               f"{' or '.join(CAE_MODELS)}")
+        _check(
+            self.model in CAE_MODELS,
+            f"cae.model={self.model} is unknown: use {' or '.join(CAE_MODELS)}",
+        )
         for key, value in CAE_MODELS[self.model].items():  # the named model fills the gaps
             if getattr(self, key) is None:
                 object.__setattr__(self, key, value)
@@ -285,10 +340,12 @@ class CAEConfig:
         )
         h, w = IMAGE_SHAPE
         down = 2 ** len(self.channels) * self.space_to_depth
-        _check(self.space_to_depth >= 1 and h % down == 0 and w % down == 0,
-               f"cae: {len(self.channels)} levels after {self.space_to_depth}x"
-               f"{self.space_to_depth} blocks do not tile {h}x{w} images: use fewer levels "
-               "or cae.space_to_depth=1")
+        _check(
+            self.space_to_depth >= 1 and h % down == 0 and w % down == 0,
+            f"cae: {len(self.channels)} levels after {self.space_to_depth}x"
+            f"{self.space_to_depth} blocks do not tile {h}x{w} images: use fewer levels "
+            "or cae.space_to_depth=1",
+        )
 
 
 @dataclass(frozen=True)
@@ -344,14 +401,20 @@ class MeshConfig:
     process_id: int | None = None  # 0 .. num_processes - 1; process 0 writes the logdir
 
     def __post_init__(self):
-        _check(self.devices >= 0, f"mesh.devices={self.devices} is negative: use 0 (all "
-               "devices), 1, or a count")  # fmt: skip
+        _check(
+            self.devices >= 0,
+            f"mesh.devices={self.devices} is negative: use 0 (all devices), 1, or a count",
+        )
         explicit = (self.coordinator, self.num_processes, self.process_id)
-        _check(self.distributed or all(v is None for v in explicit),
-               "mesh.coordinator/num_processes/process_id need mesh.distributed=true")
-        _check(all(v is None for v in explicit) or None not in explicit,
-               "set all of mesh.coordinator, mesh.num_processes and mesh.process_id, or none "
-               "(a launcher JAX detects, such as SLURM, fills them in)")  # fmt: skip
+        _check(
+            self.distributed or all(v is None for v in explicit),
+            "mesh.coordinator/num_processes/process_id need mesh.distributed=true",
+        )
+        _check(
+            all(v is None for v in explicit) or None not in explicit,
+            "set all of mesh.coordinator, mesh.num_processes and mesh.process_id, or none "
+            "(a launcher JAX detects, such as SLURM, fills them in)",
+        )
 
 
 @dataclass(frozen=True)
@@ -366,8 +429,11 @@ class PatchNormConfig:
     def __post_init__(self):
         h, w = IMAGE_SHAPE
         sizes = [s for s in range(2, h + 1) if h % s == 0 and w % s == 0]
-        _check(self.size in sizes, f"patchnorm.size={self.size} does not tile the {h}x{w} "
-               f"images: use one of {', '.join(map(str, sizes))}")
+        _check(
+            self.size in sizes,
+            f"patchnorm.size={self.size} does not tile the {h}x{w} "
+            f"images: use one of {', '.join(map(str, sizes))}",
+        )
 
 
 @dataclass(frozen=True)
@@ -379,8 +445,7 @@ class BootstrapConfig:
 
     def __post_init__(self):
         _check(self.resamples >= 10, f"bootstrap.resamples={self.resamples} must be >= 10")
-        _check(self.block_length >= 1,
-               f"bootstrap.block_length={self.block_length} must be >= 1")
+        _check(self.block_length >= 1, f"bootstrap.block_length={self.block_length} must be >= 1")
 
 
 @dataclass(frozen=True)
@@ -399,20 +464,33 @@ class SequenceConfig:
     def __post_init__(self):
         _as_tuple(self, "ds")
         _check(len(self.ds) > 0, "sequence.ds is empty: e.g. sequence.ds=[1,10]")
-        _check(min(self.ds) >= 1, f"sequence.ds={list(self.ds)} has lengths below 1: a "
-               "sequence holds at least one image (ds=1 is single-image matching)")
+        _check(
+            min(self.ds) >= 1,
+            f"sequence.ds={list(self.ds)} has lengths below 1: a "
+            "sequence holds at least one image (ds=1 is single-image matching)",
+        )
         object.__setattr__(self, "ds", tuple(sorted(set(self.ds))))
-        _check(self.contrast_window >= 0, f"sequence.contrast_window={self.contrast_window} "
-               "must be >= 0 (0: no contrast enhancement)")
-        _check(self.uniqueness_window >= 0,
-               f"sequence.uniqueness_window={self.uniqueness_window} must be >= 0")
-        _check(0 < self.v_min <= self.v_max and self.v_step > 0,
-               f"sequence velocities v_min={self.v_min}, v_max={self.v_max}, "
-               f"v_step={self.v_step} need 0 < v_min <= v_max and v_step > 0, e.g. 0.8, "
-               "1.2, 0.1")
+        _check(
+            self.contrast_window >= 0,
+            f"sequence.contrast_window={self.contrast_window} "
+            "must be >= 0 (0: no contrast enhancement)",
+        )
+        _check(
+            self.uniqueness_window >= 0,
+            f"sequence.uniqueness_window={self.uniqueness_window} must be >= 0",
+        )
+        _check(
+            0 < self.v_min <= self.v_max and self.v_step > 0,
+            f"sequence velocities v_min={self.v_min}, v_max={self.v_max}, "
+            f"v_step={self.v_step} need 0 < v_min <= v_max and v_step > 0, e.g. 0.8, "
+            "1.2, 0.1",
+        )
         n = (self.v_max - self.v_min) / self.v_step + 1
-        _check(n <= 101, f"sequence velocities from {self.v_min} to {self.v_max} in steps "
-               f"of {self.v_step} are {int(n)} trajectories per frame: use a larger v_step")
+        _check(
+            n <= 101,
+            f"sequence velocities from {self.v_min} to {self.v_max} in steps "
+            f"of {self.v_step} are {int(n)} trajectories per frame: use a larger v_step",
+        )
 
 
 @dataclass(frozen=True)
@@ -459,19 +537,29 @@ class SweepConfig:
         if self.logdir is None:
             object.__setattr__(self, "logdir", f"runs/{self.preset}")
         unknown = [m for m in self.methods if m not in METHODS]
-        _check(not unknown, f"methods={list(self.methods)} names unknown {unknown}: choose "
-               f"from {', '.join(METHODS)}")
+        _check(
+            not unknown,
+            f"methods={list(self.methods)} names unknown {unknown}: choose "
+            f"from {', '.join(METHODS)}",
+        )
         _check(len(self.methods) > 0, "methods is empty: e.g. methods=[raw,pca]")
         negative = [k for k in self.removed_pcs if k < 0]
-        _check(not negative, f"removed_pcs={list(self.removed_pcs)} has negative counts "
-               f"{negative}: use counts >= 0")
+        _check(
+            not negative,
+            f"removed_pcs={list(self.removed_pcs)} has negative counts {negative}: use counts >= 0",
+        )
         _check(len(self.removed_pcs) > 0, "removed_pcs is empty: e.g. removed_pcs=[0,50]")
         object.__setattr__(self, "removed_pcs", tuple(sorted(set(self.removed_pcs))))
         _check(self.tolerance >= 0, f"tolerance={self.tolerance} must be >= 0")
-        _check(self.pr_convention in PR_CONVENTIONS, f"pr_convention={self.pr_convention} is "
-               f"unknown: use one of {', '.join(PR_CONVENTIONS)}")
-        _check(self.preprocess in PREPROCESSES, f"preprocess={self.preprocess} is unknown: use "
-               f"one of {', '.join(PREPROCESSES)}")
+        _check(
+            self.pr_convention in PR_CONVENTIONS,
+            f"pr_convention={self.pr_convention} is "
+            f"unknown: use one of {', '.join(PR_CONVENTIONS)}",
+        )
+        _check(
+            self.preprocess in PREPROCESSES,
+            f"preprocess={self.preprocess} is unknown: use one of {', '.join(PREPROCESSES)}",
+        )
 
     @property
     def sequence_lengths(self) -> tuple[int, ...]:
@@ -479,8 +567,16 @@ class SweepConfig:
         return self.sequence.ds if self.sequence.enabled else (1,)
 
 
-_LIST_KEYS = ("methods", "removed_pcs", "data.seasons", "cae.channels", "cae.kernel_sizes",
-              "sequence.ds", "fae.objective", "cae.objective")
+_LIST_KEYS = (
+    "methods",
+    "removed_pcs",
+    "data.seasons",
+    "cae.channels",
+    "cae.kernel_sizes",
+    "sequence.ds",
+    "fae.objective",
+    "cae.objective",
+)
 
 
 # Keys that moved: an old command line gets the new name instead of "unknown key".
@@ -495,8 +591,10 @@ def _normalise_cli(argv: list[str]) -> list[str]:
         if not sep:
             raise UserError(f"argument {arg!r} is not key=value: write e.g. season_pairs=all")
         if key in MOVED_KEYS:
-            raise UserError(f"{key} moved to {MOVED_KEYS[key]}: write {MOVED_KEYS[key]}={value}"
-                            " (one validation stretch serves early stopping and selection)")
+            raise UserError(
+                f"{key} moved to {MOVED_KEYS[key]}: write {MOVED_KEYS[key]}={value}"
+                " (one validation stretch serves early stopping and selection)"
+            )
         if key in _LIST_KEYS and value and not value.startswith("["):
             value = f"[{value}]"
         if key == "season_pairs" and value.startswith("["):
@@ -519,8 +617,9 @@ def parse_config(argv: list[str]) -> SweepConfig:
         preset_file = PRESET_DIR / f"{preset}.yaml"
         if not preset_file.is_file():
             known = sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
-            raise UserError(f"preset={preset} has no file {preset_file}: use one of "
-                            f"{', '.join(known)}")
+            raise UserError(
+                f"preset={preset} has no file {preset_file}: use one of {', '.join(known)}"
+            )
         preset_cfg = OmegaConf.load(preset_file)
         merged = OmegaConf.merge(OmegaConf.structured(SweepConfig), preset_cfg, cli)
         cfg = OmegaConf.to_object(merged)
@@ -528,9 +627,11 @@ def parse_config(argv: list[str]) -> SweepConfig:
         raise UserError(f"bad config: {_first_line(err)}: see docs/config.md") from None
     if cfg.data.aligned_training:
         return cfg
-    asked = {key for key in ("methods", "fae.objective", "cae.objective")
-             if OmegaConf.select(cli, key) is not None
-             or OmegaConf.select(preset_cfg, key) is not None}  # fmt: skip
+    asked = {
+        key
+        for key in ("methods", "fae.objective", "cae.objective")
+        if OmegaConf.select(cli, key) is not None or OmegaConf.select(preset_cfg, key) is not None
+    }
     return without_aligned_learning(cfg, asked)
 
 
@@ -539,21 +640,31 @@ def without_aligned_learning(cfg: SweepConfig, asked: set[str]) -> SweepConfig:
     and objectives that learn from the alignment are left out of the defaults; asked for by
     name, they are one line."""
     source = f"data.source={cfg.data.source}"
-    fix = ("set data.train_source and data.train_root to an aligned route to learn from (e.g. "
-           "Nordland's training places), or leave them out")
+    fix = (
+        "set data.train_source and data.train_root to an aligned route to learn from (e.g. "
+        "Nordland's training places), or leave them out"
+    )
     wanted = [m for m in cfg.methods if m in NEEDS_ALIGNED]
-    _check(not (wanted and "methods" in asked), f"methods {wanted} learn from aligned "
-           f"training places, which {source} does not have: {fix}")
+    _check(
+        not (wanted and "methods" in asked),
+        f"methods {wanted} learn from aligned training places, which {source} does not have: {fix}",
+    )
     changes = {"methods": tuple(m for m in cfg.methods if m not in NEEDS_ALIGNED)}
     for model in ("fae", "cae"):
         objectives = getattr(cfg, model).objective
         if "cross_season" in objectives and model in changes["methods"]:
-            _check(f"{model}.objective" not in asked, f"{model}.objective=cross_season needs "
-                   f"aligned training places, which {source} does not have: {fix}")
+            _check(
+                f"{model}.objective" not in asked,
+                f"{model}.objective=cross_season needs "
+                f"aligned training places, which {source} does not have: {fix}",
+            )
         kept = tuple(o for o in objectives if o != "cross_season") or ("reconstruct",)
         changes[model] = dataclasses.replace(getattr(cfg, model), objective=kept)
-    _check(bool(changes["methods"]), f"methods={list(cfg.methods)} all learn from aligned "
-           f"training places, which {source} does not have: {fix}")
+    _check(
+        bool(changes["methods"]),
+        f"methods={list(cfg.methods)} all learn from aligned "
+        f"training places, which {source} does not have: {fix}",
+    )
     return dataclasses.replace(cfg, **changes)
 
 

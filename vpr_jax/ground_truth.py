@@ -47,8 +47,9 @@ def _check_indices(indices: np.ndarray, n_queries: int, n_db: int) -> np.ndarray
     if not np.issubdtype(idx.dtype, np.integer):
         raise ValueError(f"indices must be integers, got dtype {idx.dtype}")
     if idx.size and (idx.min() < 0 or idx.max() >= n_db):
-        raise ValueError(f"indices must lie in [0, {n_db}) (database positions), "
-                         f"got [{idx.min()}, {idx.max()}]")  # fmt: skip
+        raise ValueError(
+            f"indices must lie in [0, {n_db}) (database positions), got [{idx.min()}, {idx.max()}]"
+        )
     return idx.astype(np.int64)
 
 
@@ -147,13 +148,15 @@ class MatchSets(NamedTuple):
         return cls.from_pairs(rows, indices, n_queries, n_db, source)
 
     @classmethod
-    def from_pairs(cls, rows, cols, n_queries: int, n_db: int, source: str = "match sets"
-                   ) -> MatchSets:
+    def from_pairs(
+        cls, rows, cols, n_queries: int, n_db: int, source: str = "match sets"
+    ) -> MatchSets:
         """Sets from (query, database position) pairs in any order, repeats allowed."""
         cols = np.asarray(cols, np.int64)
         if cols.size and (cols.min() < 0 or cols.max() >= n_db):
-            raise ValueError(f"match indices must lie in [0, {n_db}), got "
-                             f"[{cols.min()}, {cols.max()}]")  # fmt: skip
+            raise ValueError(
+                f"match indices must lie in [0, {n_db}), got [{cols.min()}, {cols.max()}]"
+            )
         stride = np.int64(max(n_db, 1))
         keys = np.unique(np.asarray(rows, np.int64) * stride + cols)  # sorted, no repeats
         rows, cols = np.divmod(keys, stride)
@@ -164,7 +167,7 @@ class MatchSets(NamedTuple):
         return len(self.indptr) - 1
 
     def row(self, i: int) -> np.ndarray:
-        return self.indices[self.indptr[i]:self.indptr[i + 1]]
+        return self.indices[self.indptr[i] : self.indptr[i + 1]]
 
     def has_match(self) -> Bool[np.ndarray, " nq"]:
         return np.diff(self.indptr) > 0
@@ -203,16 +206,16 @@ class MatchSets(NamedTuple):
 GroundTruth = Tolerance | MatchSets
 
 
-def match_sets(rows: Sequence[Sequence[int]], n_db: int, source: str = "match sets"
-               ) -> MatchSets:
+def match_sets(rows: Sequence[Sequence[int]], n_db: int, source: str = "match sets") -> MatchSets:
     """Sets from one list of correct database positions per query."""
     counts = np.fromiter((len(r) for r in rows), np.int64, len(rows))
     flat = np.fromiter((int(j) for r in rows for j in r), np.int64, int(counts.sum()))
     return MatchSets.of(_indptr(counts), flat, n_db, source)
 
 
-def within_radius(query_xy: Float[np.ndarray, "nq 2"], db_xy: Float[np.ndarray, "ndb 2"],
-                  radius: float) -> MatchSets:
+def within_radius(
+    query_xy: Float[np.ndarray, "nq 2"], db_xy: Float[np.ndarray, "ndb 2"], radius: float
+) -> MatchSets:
     """Each query's database positions within ``radius`` (Euclidean, e.g. metres in UTM).
 
     A uniform grid of ``radius``-sized cells: a query's matches lie in its own cell or one of
@@ -242,5 +245,6 @@ def within_radius(query_xy: Float[np.ndarray, "nq 2"], db_xy: Float[np.ndarray, 
             near = np.sum((q[rows] - d[order[pos]]) ** 2, axis=1) <= radius * radius
             pairs_q.append(rows[near])
             pairs_d.append(order[pos][near])
-    return MatchSets.from_pairs(np.concatenate(pairs_q), np.concatenate(pairs_d), len(q),
-                                len(d), f"within {radius:g} m")
+    return MatchSets.from_pairs(
+        np.concatenate(pairs_q), np.concatenate(pairs_d), len(q), len(d), f"within {radius:g} m"
+    )

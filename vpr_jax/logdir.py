@@ -28,8 +28,16 @@ from vpr_jax.results import read_results
 # Keys that may differ between runs sharing a logdir: they add cells or change presentation,
 # or where and in what blocks the same numbers are computed (up to float rounding), never
 # the numbers of a cell already written.
-EXTENDABLE_KEYS = ("preset", "season_pairs", "methods", "removed_pcs", "logdir", "tb",
-                   "matching", "mesh")
+EXTENDABLE_KEYS = (
+    "preset",
+    "season_pairs",
+    "methods",
+    "removed_pcs",
+    "logdir",
+    "tb",
+    "matching",
+    "mesh",
+)
 # train.* keys that say where and how often models are saved, not what is trained.
 TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
 # Keys inside a group that add cells, like removed_pcs: the ds axis, the auto-encoders'
@@ -37,10 +45,14 @@ TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
 AXIS_KEYS = {"sequence": ("enabled", "ds"), "fae": ("objective",), "cae": ("objective",)}
 # Keys added with a default that changed what the suite computes: a saved config without
 # them was computed with the value here (other new keys' defaults reproduce the old runs).
-CHANGED_DEFAULTS = {("fae", "input_centre"): 0.0, ("fae", "standardise"): False,
-                    ("cae", "model"): "calc", ("cae", "space_to_depth"): 1,
-                    ("cae", "standardise"): False,
-                    ("split", "val_fraction"): 0.0}  # no validation stretch before it
+CHANGED_DEFAULTS = {
+    ("fae", "input_centre"): 0.0,
+    ("fae", "standardise"): False,
+    ("cae", "model"): "calc",
+    ("cae", "space_to_depth"): 1,
+    ("cae", "standardise"): False,
+    ("split", "val_fraction"): 0.0,
+}  # no validation stretch before it
 
 
 def identity(cfg: SweepConfig | dict) -> dict:
@@ -60,8 +72,9 @@ def identity(cfg: SweepConfig | dict) -> dict:
 def training_identity(settings: TrainConfig) -> dict:
     """The training settings that determine a trained model's weights (not where or how often
     it is saved)."""
-    return {k: v for k, v in plain(dataclasses.asdict(settings)).items()
-            if k not in TRAIN_BOOKKEEPING}  # fmt: skip
+    return {
+        k: v for k, v in plain(dataclasses.asdict(settings)).items() if k not in TRAIN_BOOKKEEPING
+    }
 
 
 def with_old_defaults(saved: dict) -> dict:
@@ -82,8 +95,10 @@ def saved_identity(path: Path) -> dict:
     except (OSError, yaml.YAMLError, OmegaConfBaseException) as err:
         saved = err
     if not isinstance(saved, DictConfig):
-        raise UserError(f"{path} is not a sweep config ({type(saved).__name__}), so the logdir "
-                        "cannot be resumed safely: use a new logdir=PATH") from None
+        raise UserError(
+            f"{path} is not a sweep config ({type(saved).__name__}), so the logdir "
+            "cannot be resumed safely: use a new logdir=PATH"
+        ) from None
     saved = with_old_defaults(OmegaConf.to_container(saved))
     try:
         saved = OmegaConf.to_container(OmegaConf.merge(OmegaConf.structured(SweepConfig), saved))
@@ -103,25 +118,33 @@ def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
         with tempfile.TemporaryFile(dir=existing):
             pass
     except OSError as err:
-        raise UserError(f"logdir {logdir} is not writable ({existing}: {err.strerror}): set "
-                        "logdir=PATH to a folder you can write") from None
+        raise UserError(
+            f"logdir {logdir} is not writable ({existing}: {err.strerror}): set "
+            "logdir=PATH to a folder you can write"
+        ) from None
     saved, results = logdir / "config.yaml", logdir / "results.csv"
     if saved.exists():
         now = identity(cfg)
         before = saved_identity(saved)
         differ = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
         if differ:
-            raise UserError(f"logdir {logdir} holds results of a different configuration "
-                            f"(differs in {', '.join(differ)}): use a new logdir=PATH, or "
-                            "delete that folder to start fresh")
+            raise UserError(
+                f"logdir {logdir} holds results of a different configuration "
+                f"(differs in {', '.join(differ)}): use a new logdir=PATH, or "
+                "delete that folder to start fresh"
+            )
     elif results.exists():
-        raise UserError(f"logdir {logdir} has a results.csv but no config.yaml, so it cannot "
-                        "be resumed safely: use a new logdir=PATH")
+        raise UserError(
+            f"logdir {logdir} has a results.csv but no config.yaml, so it cannot "
+            "be resumed safely: use a new logdir=PATH"
+        )
     try:
         read_results(results)
     except (OSError, ValueError) as err:
-        raise UserError(f"{results} is not a results table this sweep can resume ({err}): "
-                        "move it away or use a new logdir=PATH") from None
+        raise UserError(
+            f"{results} is not a results table this sweep can resume ({err}): "
+            "move it away or use a new logdir=PATH"
+        ) from None
 
 
 LOCK_NAME = ".lock"
@@ -147,8 +170,9 @@ def lock_folder(folder: Path, what: str, fix: str) -> None:
         folder.mkdir(parents=True, exist_ok=True)
         fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
     except OSError as err:
-        raise UserError(f"{what} {folder} cannot be locked ({err.strerror}): set it to a "
-                        "folder you can write") from None
+        raise UserError(
+            f"{what} {folder} cannot be locked ({err.strerror}): set it to a folder you can write"
+        ) from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
@@ -156,6 +180,12 @@ def lock_folder(folder: Path, what: str, fix: str) -> None:
         os.close(fd)
         raise UserError(f"{what} {folder} is in use by another sweep ({holder}): {fix}") from None
     os.ftruncate(fd, 0)
-    os.pwrite(fd, (f"pid {os.getpid()} on {socket.gethostname()} since "
-                   f"{time.strftime('%Y-%m-%d %H:%M:%S')}\n").encode(), 0)  # fmt: skip
+    os.pwrite(
+        fd,
+        (
+            f"pid {os.getpid()} on {socket.gethostname()} since "
+            f"{time.strftime('%Y-%m-%d %H:%M:%S')}\n"
+        ).encode(),
+        0,
+    )
     _held[folder] = fd

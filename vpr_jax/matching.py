@@ -155,14 +155,18 @@ def _sharded_top_k(mesh, k: int, block_size: int, starts: tuple[int, ...]):
 
     def local(query_blocks, db_blocks, n_db):
         first = jax.lax.axis_index(AXIS) * (db_blocks.shape[0] * block_size)
-        scores, idx = _top_k_query_blocks(query_blocks, db_blocks, n_db, k, block_size,
-                                          starts, first)  # (query blocks, starts, block, k)
+        scores, idx = _top_k_query_blocks(
+            query_blocks, db_blocks, n_db, k, block_size, starts, first
+        )  # (query blocks, starts, block, k)
         scores = jax.lax.all_gather(scores, AXIS, axis=3, tiled=True)
         idx = jax.lax.all_gather(idx, AXIS, axis=3, tiled=True)
         return _merge_top_k(scores, idx, k)
 
-    return jax.jit(jax.shard_map(local, mesh=mesh, in_specs=(P(), P(AXIS), P()),
-                                 out_specs=(P(), P()), check_vma=False))  # fmt: skip
+    return jax.jit(
+        jax.shard_map(
+            local, mesh=mesh, in_specs=(P(), P(AXIS), P()), out_specs=(P(), P()), check_vma=False
+        )
+    )
 
 
 def top_k_matches(
@@ -209,13 +213,13 @@ def top_k_matches(
     query_blocks = sharding.pad_rows(query_desc, query_block_size)
     query_blocks = query_blocks.reshape(-1, query_block_size, d)
     if mesh is None:
-        scores, indices = _top_k_query_blocks(query_blocks, db_blocks, n_db, k, block_size,
-                                              starts)  # fmt: skip
+        scores, indices = _top_k_query_blocks(query_blocks, db_blocks, n_db, k, block_size, starts)
     else:
         scores, indices = _sharded_top_k(mesh, k, block_size, starts)(
-            sharding.put(query_blocks, mesh, P()), sharding.put_rows(db_blocks, mesh),
+            sharding.put(query_blocks, mesh, P()),
+            sharding.put_rows(db_blocks, mesh),
             jnp.int32(n_db),
-        )  # fmt: skip
+        )
     # (query blocks, starts, block, k) -> (starts, queries, k), padding queries dropped
     scores = np.asarray(scores).transpose(1, 0, 2, 3).reshape(len(starts), -1, k)[:, :nq]
     indices = np.asarray(indices).transpose(1, 0, 2, 3).reshape(len(starts), -1, k)[:, :nq]

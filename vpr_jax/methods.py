@@ -157,8 +157,8 @@ def fit_pair_pca(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> PCAFit:
     context."""
     n = pca_components_needed(cfg, len(pair.train), pair.train[0].size)
     state, seconds = _timed(
-        lambda x: pca.fit_pca(x, n, solver=cfg.pca.solver, mesh=mesh, seed=cfg.seed),
-        pair.train)  # fmt: skip
+        lambda x: pca.fit_pca(x, n, solver=cfg.pca.solver, mesh=mesh, seed=cfg.seed), pair.train
+    )
     return PCAFit(state, seconds)
 
 
@@ -193,19 +193,39 @@ def degenerate_warning(db, query) -> str | None:
         found.append(f"the nonzero {' and '.join(parallel)} descriptors all point one way")
     if not found:
         return None
-    return (f"{' and '.join(found)}: their matches are arbitrary. Check for constant images "
-            "(data.drop_constant_frames=true) or, for an auto-encoder, dead units (another "
-            "seed, train.learning_rate, more epochs)")
+    return (
+        f"{' and '.join(found)}: their matches are arbitrary. Check for constant images "
+        "(data.drop_constant_frames=true) or, for an auto-encoder, dead units (another "
+        "seed, train.learning_rate, more epochs)"
+    )
 
 
-def _descriptors(method: str, encode: Callable, pair: PairData, *, removed_pcs=(0,),
-                 starts=(0,), basis=(None,), warning: str | None = None, **fit) -> Descriptors:
+def _descriptors(
+    method: str,
+    encode: Callable,
+    pair: PairData,
+    *,
+    removed_pcs=(0,),
+    starts=(0,),
+    basis=(None,),
+    warning: str | None = None,
+    **fit,
+) -> Descriptors:
     """Encode the pair with ``encode`` and add the degenerate-descriptor check's warning."""
     db, query, ms = _encode(encode, pair)
     found = "; ".join(w for w in (warning, degenerate_warning(db, query)) if w) or None
-    return Descriptors(method, tuple(removed_pcs), tuple(starts), db, query,
-                       *_encode_val(encode, pair), encode_ms_per_image=ms, basis=tuple(basis),
-                       warning=found, **fit)
+    return Descriptors(
+        method,
+        tuple(removed_pcs),
+        tuple(starts),
+        db,
+        query,
+        *_encode_val(encode, pair),
+        encode_ms_per_image=ms,
+        basis=tuple(basis),
+        warning=found,
+        **fit,
+    )
 
 
 def _images(vectors: np.ndarray, pair: PairData) -> np.ndarray:
@@ -237,16 +257,29 @@ def describe_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
     basis = [shown[:k] if k else None for k in ks]
     if cfg.pca.output == "pixels":
         for k, removed in zip(ks, basis, strict=True):
-            yield _descriptors("pca", lambda x, k=k: pca.encode(state, x, k, "pixels"), pair,
-                               removed_pcs=(k,), basis=(removed,),
-                               fit_seconds=ctx.pca_fit.seconds)  # fmt: skip
+            yield _descriptors(
+                "pca",
+                lambda x, k=k: pca.encode(state, x, k, "pixels"),
+                pair,
+                removed_pcs=(k,),
+                basis=(removed,),
+                fit_seconds=ctx.pca_fit.seconds,
+            )
     else:
-        yield _descriptors("pca", lambda x: pca.suffix_descriptors(state, x), pair, removed_pcs=ks,
-                           starts=ks, basis=basis, fit_seconds=ctx.pca_fit.seconds)
+        yield _descriptors(
+            "pca",
+            lambda x: pca.suffix_descriptors(state, x),
+            pair,
+            removed_pcs=ks,
+            starts=ks,
+            basis=basis,
+            fit_seconds=ctx.pca_fit.seconds,
+        )
 
 
-def describe_diff_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext
-                      ) -> Iterator[Descriptors]:
+def describe_diff_pca(
+    pair: PairData, cfg: SweepConfig, ctx: MethodContext
+) -> Iterator[Descriptors]:
     """Supervised change removal (Lowry & Milford) for every removed-PC count from one fit
     on the aligned training places' season differences: each count's descriptor is the
     image minus its projection on the first k change directions, all counts scored in one
@@ -255,11 +288,18 @@ def describe_diff_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext
     state, fit_s = _timed(  # every direction: shapes that do not depend on the counts
         lambda a, b: diff_pca.fit_diff_pca(a, b, solver=cfg.pca.solver, mesh=ctx.mesh),
         *pair.aligned_train,
-    )  # fmt: skip
+    )
     shown = _images(state.components[: cfg.tb.n_basis_images], pair)
-    yield _descriptors("diff_pca", lambda x: diff_pca.suffix_descriptors(state, x), pair,
-                       removed_pcs=ks, starts=ks, basis=[shown[:k] if k else None for k in ks],
-                       fit_seconds=fit_s, basis_name="removed_changes")  # fmt: skip
+    yield _descriptors(
+        "diff_pca",
+        lambda x: diff_pca.suffix_descriptors(state, x),
+        pair,
+        removed_pcs=ks,
+        starts=ks,
+        basis=[shown[:k] if k else None for k in ks],
+        fit_seconds=fit_s,
+        basis_name="removed_changes",
+    )
 
 
 def describe_lda(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
@@ -270,11 +310,16 @@ def describe_lda(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
     state, lda_s = _timed(
         lambda a, b: lda.fit_lda(ctx.pca_fit.state, a, b, m, cfg.lda.shrinkage),
         *pair.aligned_train,
-    )  # fmt: skip
+    )
     shown = _images(state.transform[: cfg.tb.n_basis_images], pair)
-    yield _descriptors("lda", lambda x: lda.encode(state, x), pair, basis=(shown,),
-                       fit_seconds=ctx.pca_fit.seconds + lda_s,
-                       basis_name="invariant_directions")  # fmt: skip
+    yield _descriptors(
+        "lda",
+        lambda x: lda.encode(state, x),
+        pair,
+        basis=(shown,),
+        fit_seconds=ctx.pca_fit.seconds + lda_s,
+        basis_name="invariant_directions",
+    )
 
 
 def describe_ica(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
@@ -293,33 +338,53 @@ def describe_ica(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
             raise UserError(str(err)) from None
         state, ica_s = _timed(
             lambda x, k=k: ica.fit_ica(
-                x, jax.random.key(cfg.seed), n_components=c.n_components, removed_pcs=k,
-                fun=c.fun, alpha=c.alpha, max_iter=c.max_iter, tol=c.tol, n_init=c.n_init,
+                x,
+                jax.random.key(cfg.seed),
+                n_components=c.n_components,
+                removed_pcs=k,
+                fun=c.fun,
+                alpha=c.alpha,
+                max_iter=c.max_iter,
+                tol=c.tol,
+                n_init=c.n_init,
                 pca_state=pca_state,
             ),
             pair.train,
-        )  # fmt: skip
+        )
         converged = bool(state.converged)
-        warning = None if converged else (
-            f"ICA ({state.unmixing.shape[0]} components, removed_pcs={k}) did not converge: "
-            f"stopped at ica.max_iter={c.max_iter} above ica.tol={c.tol}; raise ica.max_iter "
-            "or ica.tol, or lower ica.n_components"
+        warning = (
+            None
+            if converged
+            else (
+                f"ICA ({state.unmixing.shape[0]} components, removed_pcs={k}) did not converge: "
+                f"stopped at ica.max_iter={c.max_iter} above ica.tol={c.tol}; raise ica.max_iter "
+                "or ica.tol, or lower ica.n_components"
+            )
         )
         basis = _images(np.asarray(ica.mixing(state)).T[: cfg.tb.n_basis_images], pair)
         yield _descriptors(
-            "ica", lambda x, state=state: ica.encode(state, x), pair, removed_pcs=(k,),
-            basis=(basis,), warning=warning, fit_seconds=ctx.pca_fit.seconds + ica_s,
-            n_iter=int(state.n_iter), converged=converged, basis_name="independent_components",
-        )  # fmt: skip
+            "ica",
+            lambda x, state=state: ica.encode(state, x),
+            pair,
+            removed_pcs=(k,),
+            basis=(basis,),
+            warning=warning,
+            fit_seconds=ctx.pca_fit.seconds + ica_s,
+            n_iter=int(state.n_iter),
+            converged=converged,
+            basis_name="independent_components",
+        )
 
 
 def autoencoder_spec(method: str, cfg: SweepConfig) -> ae.Spec:
     if method == "fae":
-        return ae.FAESpec(hidden=cfg.fae.hidden, centre=cfg.fae.input_centre,
-                          standardise=cfg.fae.standardise)
+        return ae.FAESpec(
+            hidden=cfg.fae.hidden, centre=cfg.fae.input_centre, standardise=cfg.fae.standardise
+        )
     c = cfg.cae
-    return ae.CAESpec(tuple(c.channels), tuple(c.kernel_sizes), c.code_channels,
-                      c.space_to_depth, c.standardise)
+    return ae.CAESpec(
+        tuple(c.channels), tuple(c.kernel_sizes), c.code_channels, c.space_to_depth, c.standardise
+    )
 
 
 def model_name(method: str, objective: str = "") -> str:
@@ -348,9 +413,12 @@ def describe_autoencoder(
         name = model_name(method, objective)
         if ctx.checkpoint_dir is not None and jax.process_index() == 0:
             # Logdirs of one name under different parents share this folder: one writer.
-            lock_folder(ctx.checkpoint_dir / name, "checkpoint folder",
-                        "wait for it to finish, or give this logdir another name (or set "
-                        "train.checkpoint_dir)")  # fmt: skip
+            lock_folder(
+                ctx.checkpoint_dir / name,
+                "checkpoint folder",
+                "wait for it to finish, or give this logdir another name (or set "
+                "train.checkpoint_dir)",
+            )
         log = ctx.training_log(name) if ctx.training_log else None
         try:
             result = fit_autoencoder(
@@ -360,8 +428,12 @@ def describe_autoencoder(
                 jax.random.fold_in(jax.random.key(cfg.seed), zlib.crc32(method.encode())),
                 settings,
                 checkpoint_dir=ctx.checkpoint_dir / name if ctx.checkpoint_dir else None,
-                identity={**(ctx.identity or {}), "train": training_identity(settings),
-                          "season_pair": pair.name, "method": method},  # fmt: skip
+                identity={
+                    **(ctx.identity or {}),
+                    "train": training_identity(settings),
+                    "season_pair": pair.name,
+                    "method": method,
+                },
                 log=log,
                 name=f"{pair.name} {name}",
                 mesh=ctx.mesh,
@@ -373,8 +445,9 @@ def describe_autoencoder(
         yield _autoencoder_descriptors(method, objective, result, pair, cfg)
 
 
-def _autoencoder_descriptors(method: str, objective: str, result, pair: PairData,
-                             cfg: SweepConfig) -> Descriptors:
+def _autoencoder_descriptors(
+    method: str, objective: str, result, pair: PairData, cfg: SweepConfig
+) -> Descriptors:
     encode = ae.make_encode(result.graphdef)
     # Encoding runs on one device: a mesh-replicated model would encode on every device.
     params = jax.tree.map(sharding.to_host, result.params)
@@ -382,10 +455,17 @@ def _autoencoder_descriptors(method: str, objective: str, result, pair: PairData
     if method == "fae":  # what each hidden unit looks for: its weights as an image
         weights = np.asarray(params["encoder"]["kernel"]).T[: cfg.tb.n_basis_images]
         basis = _images(weights, pair)
-    return _descriptors(method, lambda x: encode(params, x), pair, basis=(basis,),
-                        objective=objective, fit_seconds=result.train_seconds,
-                        n_iter=result.epochs, converged=result.stopped_early,
-                        basis_name="hidden_units")  # fmt: skip
+    return _descriptors(
+        method,
+        lambda x: encode(params, x),
+        pair,
+        basis=(basis,),
+        objective=objective,
+        fit_seconds=result.train_seconds,
+        n_iter=result.epochs,
+        converged=result.stopped_early,
+        basis_name="hidden_units",
+    )
 
 
 # A method maps (pair, config, context) to its descriptors, in any order, as they finish.

@@ -365,8 +365,13 @@ def evaluate_top_k(
 ) -> Evaluation:
     """All metrics from each query's top-K matches, ground truth ``|q - d| <= tolerance``
     on frame ids: :func:`evaluate_matches` with ``Tolerance``."""
-    return evaluate_matches(top_scores, top_indices, Tolerance.of(query_ids, db_ids, tolerance),
-                            pr_convention=pr_convention, ks=ks)
+    return evaluate_matches(
+        top_scores,
+        top_indices,
+        Tolerance.of(query_ids, db_ids, tolerance),
+        pr_convention=pr_convention,
+        ks=ks,
+    )
 
 
 def evaluate_matches(
@@ -451,8 +456,13 @@ def evaluate_matches(
     )
 
 
-def evaluate(similarity: Float[np.ndarray, "nq ndb"], query_ids: Int[np.ndarray, " nq"],
-             db_ids: Int[np.ndarray, " ndb"], tolerance: int, **options) -> Evaluation:
+def evaluate(
+    similarity: Float[np.ndarray, "nq ndb"],
+    query_ids: Int[np.ndarray, " nq"],
+    db_ids: Int[np.ndarray, " ndb"],
+    tolerance: int,
+    **options,
+) -> Evaluation:
     """All metrics from a full similarity matrix, higher = more similar; ``options``
     (``pr_convention``, ``ks``) as for :func:`evaluate_top_k`, which this calls.
 
@@ -474,5 +484,6 @@ def evaluate(similarity: Float[np.ndarray, "nq ndb"], query_ids: Int[np.ndarray,
     # float64 is exact for float32 and integer scores, and negates unsigned ones correctly
     k = _all_ks(options.get("ks", DEFAULT_KS))[-1]
     top_i = np.argsort(-sim.astype(np.float64), axis=1, kind="stable")[:, :k]
-    return evaluate_top_k(np.take_along_axis(sim, top_i, axis=1), top_i, query_ids, db_ids,
-                          tolerance, **options)
+    return evaluate_top_k(
+        np.take_along_axis(sim, top_i, axis=1), top_i, query_ids, db_ids, tolerance, **options
+    )

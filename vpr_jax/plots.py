@@ -24,8 +24,9 @@ def _variant(row: ResultRow) -> str:
 
 
 def _label(row: ResultRow) -> str:
-    return f"{row.method} (k={row.removed_pcs})" if row.method in SWEEPS_REMOVED_PCS \
-        else _variant(row)
+    return (
+        f"{row.method} (k={row.removed_pcs})" if row.method in SWEEPS_REMOVED_PCS else _variant(row)
+    )
 
 
 def _shortest_sequences(rows: list[ResultRow]) -> list[ResultRow]:
@@ -82,12 +83,20 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
         for method in methods:
-            points = sorted((r.ds, r.recall_at_1) for r in best
-                            if r.season_pair == pair and _variant(r) == method)
+            points = sorted(
+                (r.ds, r.recall_at_1)
+                for r in best
+                if r.season_pair == pair and _variant(r) == method
+            )
             if points:
                 ax.plot(*zip(*points, strict=True), marker="o", label=method)
-        ax.set(title=pair, xlabel="sequence length ds (frames)", ylabel="recall@1",
-               ylim=(0, 1.02), xticks=sorted({r.ds for r in rows}))
+        ax.set(
+            title=pair,
+            xlabel="sequence length ds (frames)",
+            ylabel="recall@1",
+            ylim=(0, 1.02),
+            xticks=sorted({r.ds for r in rows}),
+        )
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()

@@ -63,8 +63,9 @@ def preprocess_route(
     """The route every method sees: as loaded (``none``) or patch-normalised."""
     if not _announce(preprocess, size, rounded, log):
         return route
-    return Route(route.frame_ids, {s: patch_normalize(im, size, rounded)
-                                   for s, im in route.images.items()})
+    return Route(
+        route.frame_ids, {s: patch_normalize(im, size, rounded) for s, im in route.images.items()}
+    )
 
 
 def preprocess_benchmark(
@@ -73,8 +74,10 @@ def preprocess_benchmark(
     """A benchmark's database and queries, preprocessed as ``preprocess_route`` does."""
     if not _announce(preprocess, size, rounded, log):
         return bench
-    return bench._replace(db=patch_normalize(bench.db, size, rounded),
-                          query=patch_normalize(bench.query, size, rounded))
+    return bench._replace(
+        db=patch_normalize(bench.db, size, rounded),
+        query=patch_normalize(bench.query, size, rounded),
+    )
 
 
 def _announce(preprocess: str, size: int, rounded: bool, log: Log) -> bool:

@@ -13,33 +13,36 @@ from typing import NamedTuple
 from vpr_jax.metrics import SCALAR_NAMES
 
 # The columns of results.csv, in order, with their types: one row per finished cell.
-ResultRow = NamedTuple("ResultRow", [
-    ("season_pair", str),  # db-query, e.g. summer-fall
-    ("db_season", str),
-    ("query_season", str),
-    ("method", str),
-    ("objective", str),  # the auto-encoders' training objective; empty for other methods
-    ("removed_pcs", int),  # 0 for methods without the removed-PC axis
-    ("ds", int),  # sequence length; 1 = single images
-    ("n_train", int),  # images the encoder was fitted on, both seasons
-    ("n_test", int),  # queries
-    ("tolerance", int),  # frames, for a tolerance ground truth; -1 for sets
-    ("ground_truth", str),  # what defines a correct match: "+-2 frames", "within 25 m", ...
-    *((name, float) for name in SCALAR_NAMES),  # the seven metrics (vpr_jax.metrics)
-    ("recall_at_1_ci_low", float),  # 95% block-bootstrap interval (vpr_jax.bootstrap)
-    ("recall_at_1_ci_high", float),
-    ("auc_pr_ci_low", float),
-    ("auc_pr_ci_high", float),
-    ("val_recall_at_1", float),  # on the validation places: what chooses the setting
-    ("val_auc_pr", float),  # breaks ties of val_recall_at_1 (it saturates on easy routes)
-    ("selected", int),  # 1: the best on validation of its pair x method x objective x ds
-    ("fit_seconds", float),
-    ("encode_ms_per_image", float),
-    ("n_iter", int),  # iterations of an iterative fit (epochs for the auto-encoders)
-    ("converged", int),  # 0 when the fit stopped at its iteration limit
-    ("seed", int),
-    ("run", str),  # the cell's TensorBoard run, relative to the logdir
-])
+ResultRow = NamedTuple(
+    "ResultRow",
+    [
+        ("season_pair", str),  # db-query, e.g. summer-fall
+        ("db_season", str),
+        ("query_season", str),
+        ("method", str),
+        ("objective", str),  # the auto-encoders' training objective; empty for other methods
+        ("removed_pcs", int),  # 0 for methods without the removed-PC axis
+        ("ds", int),  # sequence length; 1 = single images
+        ("n_train", int),  # images the encoder was fitted on, both seasons
+        ("n_test", int),  # queries
+        ("tolerance", int),  # frames, for a tolerance ground truth; -1 for sets
+        ("ground_truth", str),  # what defines a correct match: "+-2 frames", "within 25 m", ...
+        *((name, float) for name in SCALAR_NAMES),  # the seven metrics (vpr_jax.metrics)
+        ("recall_at_1_ci_low", float),  # 95% block-bootstrap interval (vpr_jax.bootstrap)
+        ("recall_at_1_ci_high", float),
+        ("auc_pr_ci_low", float),
+        ("auc_pr_ci_high", float),
+        ("val_recall_at_1", float),  # on the validation places: what chooses the setting
+        ("val_auc_pr", float),  # breaks ties of val_recall_at_1 (it saturates on easy routes)
+        ("selected", int),  # 1: the best on validation of its pair x method x objective x ds
+        ("fit_seconds", float),
+        ("encode_ms_per_image", float),
+        ("n_iter", int),  # iterations of an iterative fit (epochs for the auto-encoders)
+        ("converged", int),  # 0 when the fit stopped at its iteration limit
+        ("seed", int),
+        ("run", str),  # the cell's TensorBoard run, relative to the logdir
+    ],
+)
 COLUMNS: tuple[str, ...] = ResultRow._fields
 COLUMN_TYPES: dict[str, type] = ResultRow.__annotations__
 TIMING_NAMES = ("fit_seconds", "encode_ms_per_image")
@@ -47,9 +50,17 @@ TIMING_NAMES = ("fit_seconds", "encode_ms_per_image")
 ADDED_COLUMNS = {
     "ds": lambda row: "1",  # sequence length: 1 is single-image matching
     "objective": lambda row: "reconstruct" if row["method"] in ("fae", "cae") else "",
-    **{name: (lambda row: "nan") for name in ("recall_at_1_ci_low", "recall_at_1_ci_high",
-                                               "auc_pr_ci_low", "auc_pr_ci_high",
-                                               "val_recall_at_1", "val_auc_pr")},  # fmt: skip
+    **{
+        name: (lambda row: "nan")
+        for name in (
+            "recall_at_1_ci_low",
+            "recall_at_1_ci_high",
+            "auc_pr_ci_low",
+            "auc_pr_ci_high",
+            "val_recall_at_1",
+            "val_auc_pr",
+        )
+    },
     "selected": lambda row: "0",  # marked again whenever the table is written
     "extended_precision": lambda row: "nan",
     "ground_truth": lambda row: f"+-{row['tolerance']} frames",
@@ -91,8 +102,9 @@ def cell_key(row: ResultRow) -> CellKey:
 
 def _parse(row: dict) -> ResultRow:
     """A csv row of text (or a row of values) as a typed ResultRow."""
-    return ResultRow(*(COLUMN_TYPES[col](row[col] if col in row else ADDED_COLUMNS[col](row))
-                       for col in COLUMNS))  # fmt: skip
+    return ResultRow(
+        *(COLUMN_TYPES[col](row[col] if col in row else ADDED_COLUMNS[col](row)) for col in COLUMNS)
+    )
 
 
 def read_results(path: Path) -> list[ResultRow]:
@@ -195,13 +207,23 @@ def markdown_table(rows: list[ResultRow], differences: dict | None = None) -> st
     differences = differences or {}
     sequences = any(r.ds != 1 for r in rows)
     ds_col = ("ds",) if sequences else ()
-    cols = ("season_pair", "method", "objective", "removed_pcs", *ds_col,
-            "recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_5", "recall_at_10",
-            "fit_seconds", "encode_ms_per_image")
+    cols = (
+        "season_pair",
+        "method",
+        "objective",
+        "removed_pcs",
+        *ds_col,
+        "recall_at_1",
+        "auc_pr",
+        "recall_at_100_precision",
+        "recall_at_5",
+        "recall_at_10",
+        "fit_seconds",
+        "encode_ms_per_image",
+    )
 
     def order(rs: list[ResultRow]) -> list[ResultRow]:
-        return sorted(rs, key=lambda r: (r.season_pair, r.method, r.objective, r.removed_pcs,
-                                         r.ds))
+        return sorted(rs, key=lambda r: (r.season_pair, r.method, r.objective, r.removed_pcs, r.ds))
 
     def table(rs: list[ResultRow]) -> list[str]:
         lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
@@ -212,9 +234,20 @@ def markdown_table(rows: list[ResultRow], differences: dict | None = None) -> st
         return lines
 
     def headline(rs: list[ResultRow]) -> list[str]:
-        head = ("season_pair", "method", "objective", "removed_pcs", *ds_col,
-                "val_recall_at_1", "recall_at_1", "95% CI", "auc_pr", "95% CI",
-                "recall@1 - PCA [95% CI]", "vs PCA")
+        head = (
+            "season_pair",
+            "method",
+            "objective",
+            "removed_pcs",
+            *ds_col,
+            "val_recall_at_1",
+            "recall_at_1",
+            "95% CI",
+            "auc_pr",
+            "95% CI",
+            "recall@1 - PCA [95% CI]",
+            "vs PCA",
+        )
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for r in order(rs):
             diff = differences.get(r.run)
@@ -225,11 +258,20 @@ def markdown_table(rows: list[ResultRow], differences: dict | None = None) -> st
             else:
                 versus = f"{diff.value:+.3f} [{diff.low:+.3f}, {diff.high:+.3f}]"
                 label = diff.label
-            cells = [r.season_pair, r.method, r.objective, str(r.removed_pcs),
-                     *((str(r.ds),) if sequences else ()), f"{r.val_recall_at_1:.3f}",
-                     f"{r.recall_at_1:.3f}", _ci(r.recall_at_1_ci_low, r.recall_at_1_ci_high),
-                     f"{r.auc_pr:.3f}", _ci(r.auc_pr_ci_low, r.auc_pr_ci_high), versus,
-                     label]  # fmt: skip
+            cells = [
+                r.season_pair,
+                r.method,
+                r.objective,
+                str(r.removed_pcs),
+                *((str(r.ds),) if sequences else ()),
+                f"{r.val_recall_at_1:.3f}",
+                f"{r.recall_at_1:.3f}",
+                _ci(r.recall_at_1_ci_low, r.recall_at_1_ci_high),
+                f"{r.auc_pr:.3f}",
+                _ci(r.auc_pr_ci_low, r.auc_pr_ci_high),
+                versus,
+                label,
+            ]
             lines.append("| " + " | ".join(cells) + " |")
         return lines
 

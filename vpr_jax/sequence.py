@@ -50,8 +50,9 @@ _EPS = 1e-6  # a window whose differences spread less than this is left flat (z 
 def velocities(v_min: float, v_max: float, v_step: float) -> tuple[float, ...]:
     """v_min, v_min + v_step, ... up to v_max (inclusive, to 1e-9), rounded to 6 decimals."""
     if v_step <= 0 or v_min <= 0 or v_max < v_min:
-        raise ValueError(f"velocities need 0 < v_min <= v_max and v_step > 0, got "
-                         f"{v_min}, {v_max}, {v_step}")
+        raise ValueError(
+            f"velocities need 0 < v_min <= v_max and v_step > 0, got {v_min}, {v_max}, {v_step}"
+        )
     n = int(np.floor((v_max - v_min) / v_step + 1e-9)) + 1
     return tuple(round(v_min + i * v_step, 6) for i in range(n))
 
@@ -93,8 +94,9 @@ def _enhance(diff: Float[Array, "r n"], window: int) -> Float[Array, "r n"]:
     diff = diff - jnp.mean(diff, axis=1, keepdims=True)
 
     def window_sum(x):
-        return jax.lax.reduce_window(x, 0.0, jax.lax.add, (1, 2 * half + 1), (1, 1),
-                                     ((0, 0), (half, half)))  # fmt: skip
+        return jax.lax.reduce_window(
+            x, 0.0, jax.lax.add, (1, 2 * half + 1), (1, 1), ((0, 0), (half, half))
+        )
 
     # Frames in each window (fewer at the ends), elementwise: a windowed sum of a constant
     # would be constant-folded at compile time, seconds on the full route.
@@ -125,8 +127,10 @@ def _search_block(sim_rows, row_stretch, db_stretch, *, ds, offsets, window, uni
     # Step j is usable for query t when row j + t is a query of t's own stretch; a database
     # shift s when frame i + s is in frame i's stretch. Both are shared across velocities.
     query_ok = [((row_stretch[j : j + b] == own) & (own >= 0))[:, None] for j in range(ds)]
-    db_ok = {s: (stretch[reach + s : reach + s + n_db] == db_stretch)[None, :]
-             for s in {s for vel in offsets for s in vel}}
+    db_ok = {
+        s: (stretch[reach + s : reach + s + n_db] == db_stretch)[None, :]
+        for s in {s for vel in offsets for s in vel}
+    }
     cost = None
     for vel in offsets:
         total = jnp.zeros((b, n_db), enhanced.dtype)
@@ -157,11 +161,8 @@ def _smallest_k(cost: Float[Array, "b n"], k: int) -> tuple[Array, Array]:
     return jnp.stack(values, axis=1), jnp.stack(indices, axis=1).astype(jnp.int32)
 
 
-@functools.partial(
-    jax.jit, static_argnames=("ds", "offsets", "window", "unique", "k", "block")
-)
-def _sequence_blocks(rows, db, q_stretch, db_stretch, *, ds, offsets, window, unique, k,
-                     block):
+@functools.partial(jax.jit, static_argnames=("ds", "offsets", "window", "unique", "k", "block"))
+def _sequence_blocks(rows, db, q_stretch, db_stretch, *, ds, offsets, window, unique, k, block):
     """Every query block in turn. ``rows`` are similarity rows (``db`` None) or query
     descriptors whose cosine rows against ``db`` each block computes for itself."""
     nq = rows.shape[0]
@@ -177,8 +178,9 @@ def _sequence_blocks(rows, db, q_stretch, db_stretch, *, ds, offsets, window, un
         if db is not None:
             sim = sim @ db.T
         own = jax.lax.dynamic_slice_in_dim(stretch, start, block + ds - 1)
-        return _search_block(sim, own, db_stretch, ds=ds, offsets=offsets, window=window,
-                             unique=unique, k=k)  # fmt: skip
+        return _search_block(
+            sim, own, db_stretch, ds=ds, offsets=offsets, window=window, unique=unique, k=k
+        )
 
     scores, idx = jax.lax.map(one, jnp.arange(n_blocks) * block)
     return scores.reshape(-1, k)[:nq], idx.reshape(-1, k)[:nq]
@@ -203,8 +205,18 @@ def sequence_top_k(
     (default: one unbroken stretch each). Returns numpy (scores, indices), (n_queries,
     min(k, n_db)); ds = 1 returns the similarity's own top K.
     """
-    return _search(jnp.asarray(similarity, jnp.float32), None, ds, query_ids, db_ids, vels,
-                   contrast_window, uniqueness_window, k, query_block_size)  # fmt: skip
+    return _search(
+        jnp.asarray(similarity, jnp.float32),
+        None,
+        ds,
+        query_ids,
+        db_ids,
+        vels,
+        contrast_window,
+        uniqueness_window,
+        k,
+        query_block_size,
+    )
 
 
 def sequence_top_k_cosine(
@@ -213,12 +225,23 @@ def sequence_top_k_cosine(
     """``sequence_top_k`` of the cosine similarity of descriptors (keyword options as
     there), computed block by block: the full matrix is never held. ds = 1 is
     ``matching.top_k_matches``."""
-    return _search(jnp.asarray(query_desc, jnp.float32), jnp.asarray(db_desc, jnp.float32),
-                   ds, **options)
+    return _search(
+        jnp.asarray(query_desc, jnp.float32), jnp.asarray(db_desc, jnp.float32), ds, **options
+    )
 
 
-def _search(rows, db, ds, query_ids=None, db_ids=None, vels=DEFAULT_VELOCITIES,
-            contrast_window=10, uniqueness_window=10, k=10, query_block_size=None):
+def _search(
+    rows,
+    db,
+    ds,
+    query_ids=None,
+    db_ids=None,
+    vels=DEFAULT_VELOCITIES,
+    contrast_window=10,
+    uniqueness_window=10,
+    k=10,
+    query_block_size=None,
+):
     """Similarity rows (``db`` None) or query descriptors against ``db`` descriptors."""
     nq, n_db = rows.shape[0], rows.shape[1] if db is None else db.shape[0]
     if ds < 1:
@@ -228,8 +251,10 @@ def _search(rows, db, ds, query_ids=None, db_ids=None, vels=DEFAULT_VELOCITIES,
     q_ids = np.arange(nq) if query_ids is None else np.asarray(query_ids)
     d_ids = np.arange(n_db) if db_ids is None else np.asarray(db_ids)
     if q_ids.shape != (nq,) or d_ids.shape != (n_db,):
-        raise ValueError(f"query_ids and db_ids must have {nq} and {n_db} entries, got "
-                         f"{q_ids.shape} and {d_ids.shape}")
+        raise ValueError(
+            f"query_ids and db_ids must have {nq} and {n_db} entries, got "
+            f"{q_ids.shape} and {d_ids.shape}"
+        )
     k = min(k, n_db)
     if ds == 1:
         if db is None:
@@ -239,8 +264,15 @@ def _search(rows, db, ds, query_ids=None, db_ids=None, vels=DEFAULT_VELOCITIES,
         return scores[0], idx[0]
     block = query_block_size or max(1, SCORE_BUDGET // max(n_db, 1))
     scores, idx = _sequence_blocks(
-        rows, db, jnp.asarray(stretch_ids(q_ids)), jnp.asarray(stretch_ids(d_ids)), ds=ds,
-        offsets=trajectory_offsets(ds, tuple(vels)), window=contrast_window,
-        unique=uniqueness_window, k=k, block=min(block, nq),
+        rows,
+        db,
+        jnp.asarray(stretch_ids(q_ids)),
+        jnp.asarray(stretch_ids(d_ids)),
+        ds=ds,
+        offsets=trajectory_offsets(ds, tuple(vels)),
+        window=contrast_window,
+        unique=uniqueness_window,
+        k=k,
+        block=min(block, nq),
     )
     return np.asarray(scores), np.asarray(idx)

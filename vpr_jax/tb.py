@@ -53,8 +53,9 @@ def _to_tbx(summary_pb) -> Summary:
 
 def write_experiment_config(logdir: Path, domains: dict[str, list], metric_tags: list[str]):
     """The HParams experiment: discrete domains of every swept knob and the metric tags."""
-    hparams = [hp.HParam(name, hp.Discrete(sorted(set(values))))
-               for name, values in domains.items()]
+    hparams = [
+        hp.HParam(name, hp.Discrete(sorted(set(values)))) for name, values in domains.items()
+    ]
     metrics = [hp.Metric(tag) for tag in metric_tags]
     # A resumed or extended sweep replaces the experiment instead of adding a second one.
     for old in Path(logdir).glob("events.out.tfevents.*.hparams"):
@@ -89,8 +90,11 @@ def match_examples(query, db, truth: GroundTruth, best_indices, n: int) -> np.nd
     true = truth.a_match()
     rows = []
     for q in picks:
-        rows += [query[q], db[best_indices[q]],
-                 db[true[q]] if true[q] >= 0 else np.zeros_like(db[0])]
+        rows += [
+            query[q],
+            db[best_indices[q]],
+            db[true[q]] if true[q] >= 0 else np.zeros_like(db[0]),
+        ]
     return tile(np.stack(rows), n_cols=3)
 
 
@@ -119,8 +123,15 @@ def write_cell_run(
     writer = SummaryWriter(str(run_dir))
     for tag, value in tagged.items():
         writer.add_scalar(tag, float(value), global_step=0)
-    _add_pr_curve(writer, "pr_curve", ev.best_scores, ev.best_correct, ev.has_match,
-                  ev.pr_convention, n_thresholds)
+    _add_pr_curve(
+        writer,
+        "pr_curve",
+        ev.best_scores,
+        ev.best_correct,
+        ev.has_match,
+        ev.pr_convention,
+        n_thresholds,
+    )
     writer.add_image("matches/query_best_true", examples, global_step=0, dataformats="HW")
     if basis_images is not None and len(basis_images):
         grid = tile(normalise_each(basis_images), n_cols=min(4, len(basis_images)))
@@ -129,17 +140,31 @@ def write_cell_run(
     _closed(writer)
 
 
-def _add_pr_curve(writer: SummaryWriter, tag: str, best_scores, best_correct, has_match,
-                  pr_convention: str, n_thresholds: int, step: int = 0) -> None:
+def _add_pr_curve(
+    writer: SummaryWriter,
+    tag: str,
+    best_scores,
+    best_correct,
+    has_match,
+    pr_convention: str,
+    n_thresholds: int,
+    step: int = 0,
+) -> None:
     """A single-best-match PR curve on thresholds linspace(0, 1) of (cosine + 1) / 2, its
     counts in ``pr_convention`` (TensorBoard's recall is then the sweep's recall)."""
     thresholds = np.linspace(0.0, 1.0, n_thresholds)
-    tp, fp, tn, fn = pr_counts((np.asarray(best_scores) + 1.0) / 2.0, best_correct, has_match,
-                               thresholds, pr_convention=pr_convention)  # fmt: skip
+    tp, fp, tn, fn = pr_counts(
+        (np.asarray(best_scores) + 1.0) / 2.0,
+        best_correct,
+        has_match,
+        thresholds,
+        pr_convention=pr_convention,
+    )
     precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
     recall = tp / np.maximum(tp + fn, 1)
-    writer.add_pr_curve_raw(tag, tp, fp, tn, fn, precision, recall, global_step=step,
-                            num_thresholds=n_thresholds)  # fmt: skip
+    writer.add_pr_curve_raw(
+        tag, tp, fp, tn, fn, precision, recall, global_step=step, num_thresholds=n_thresholds
+    )
 
 
 class SummaryCell(NamedTuple):
@@ -157,8 +182,9 @@ class SummaryCell(NamedTuple):
 COMPARED = ("recall_at_1", "auc_pr", "extended_precision", "recall_at_100_precision")
 
 
-def write_pair_summary(run_dir: Path, cells: list[SummaryCell], *, pr_convention: str,
-                       n_thresholds: int) -> None:
+def write_pair_summary(
+    run_dir: Path, cells: list[SummaryCell], *, pr_convention: str, n_thresholds: int
+) -> None:
     """A season pair's summary run: each method's selected cell as tags of one run, so
     TensorBoard shows the comparison (the seed's Figs 7-12) without ticking 70 runs.
 
@@ -171,14 +197,23 @@ def write_pair_summary(run_dir: Path, cells: list[SummaryCell], *, pr_convention
     writer = SummaryWriter(str(run_dir))
     rows = ["| step | method | selected | recall@1 | AUC-PR |", "|---|---|---|---|---|"]
     for step, cell in enumerate(cells):
-        _add_pr_curve(writer, f"pr_curve/{cell.label}", cell.best_scores, cell.best_correct,
-                      cell.has_match, pr_convention, n_thresholds)  # fmt: skip
+        _add_pr_curve(
+            writer,
+            f"pr_curve/{cell.label}",
+            cell.best_scores,
+            cell.best_correct,
+            cell.has_match,
+            pr_convention,
+            n_thresholds,
+        )
         for name, value in cell.scalars.items():
             writer.add_scalar(f"metrics/{name}/{cell.label}", float(value), global_step=0)
         for name in COMPARED:
             writer.add_scalar(f"compare/{name}", float(cell.scalars[name]), global_step=step)
-        rows.append(f"| {step} | {cell.label} | {cell.setting} | "
-                    f"{cell.scalars['recall_at_1']:.3f} | {cell.scalars['auc_pr']:.3f} |")
+        rows.append(
+            f"| {step} | {cell.label} | {cell.setting} | "
+            f"{cell.scalars['recall_at_1']:.3f} | {cell.scalars['auc_pr']:.3f} |"
+        )
     writer.add_text("methods", "\n".join(rows), global_step=0)
     _closed(writer)
 
@@ -199,8 +234,9 @@ class TrainingRun:
         # tensorboardX names event files by the second: a session resumed within the same
         # second would truncate the killed session's file. The nanosecond suffix keeps
         # both, in the order they were written.
-        self._writer = SummaryWriter(str(self._run_dir), purge_step=step + 1,
-                                     filename_suffix=f".{time.time_ns()}")  # fmt: skip
+        self._writer = SummaryWriter(
+            str(self._run_dir), purge_step=step + 1, filename_suffix=f".{time.time_ns()}"
+        )
 
     def scalar(self, tag: str, value: float, step: int) -> None:
         self._writer.add_scalar(tag, float(value), global_step=step)

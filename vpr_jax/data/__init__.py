@@ -12,8 +12,15 @@ from vpr_jax.data.screen import screen_route
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Log
 
-__all__ = ["IMAGE_SHAPE", "SEASON_ORDER", "Benchmark", "Route", "load_data", "load_route",
-           "load_train_route"]  # fmt: skip
+__all__ = [
+    "IMAGE_SHAPE",
+    "SEASON_ORDER",
+    "Benchmark",
+    "Route",
+    "load_data",
+    "load_route",
+    "load_train_route",
+]
 
 
 def load_route(cfg: DataConfig, seed: int, log: Log = print) -> Route:
@@ -27,10 +34,17 @@ def load_route(cfg: DataConfig, seed: int, log: Log = print) -> Route:
     else:
         from vpr_jax.data.nordland import load_nordland
 
-        route = load_nordland(cfg.source, cfg.root, cfg.seasons, cache_dir=cfg.cache_dir,
-                              frame_list=cfg.frame_list, frame_step=cfg.frame_step,
-                              frame_range=cfg.frame_range, max_pixels=cfg.max_pixels,
-                              log=log)  # fmt: skip
+        route = load_nordland(
+            cfg.source,
+            cfg.root,
+            cfg.seasons,
+            cache_dir=cfg.cache_dir,
+            frame_list=cfg.frame_list,
+            frame_step=cfg.frame_step,
+            frame_range=cfg.frame_range,
+            max_pixels=cfg.max_pixels,
+            log=log,
+        )
     return screen_route(route, max_std=cfg.constant_std, drop=cfg.drop_constant_frames, log=log)
 
 
@@ -48,17 +62,22 @@ def load_benchmark(cfg: DataConfig, seed: int, log: Log = print) -> Benchmark:
     from vpr_jax.data.benchmark import star_partition
 
     db, query = _star_seasons(cfg.seasons)  # before anything is read
-    route = load_route(dataclasses.replace(cfg, source="nordland_images", train_source=None,
-                                           train_root=None), seed, log)  # fmt: skip
+    route = load_route(
+        dataclasses.replace(cfg, source="nordland_images", train_source=None, train_root=None),
+        seed,
+        log,
+    )
     return star_partition(route, db, query)
 
 
 def _star_seasons(seasons) -> tuple[str, str]:
     """Nordland*: the references are winter, the queries summer (VPR-Bench)."""
     if set(seasons) != {"summer", "winter"}:
-        raise UserError(f"data.source=nordland_star matches summer queries to winter "
-                        f"references, data.seasons={list(seasons)}: set "
-                        "data.seasons=[summer,winter]")  # fmt: skip
+        raise UserError(
+            f"data.source=nordland_star matches summer queries to winter "
+            f"references, data.seasons={list(seasons)}: set "
+            "data.seasons=[summer,winter]"
+        )
     return "winter", "summer"
 
 
@@ -69,9 +88,15 @@ def load_train_route(cfg: DataConfig, seed: int, log: Log = print) -> Route | No
         return None
     log(f"training route: data.train_source={cfg.train_source}, seasons {list(cfg.seasons)}")
     # The benchmark's frame selection is not the route's: the route's split picks its places.
-    route_cfg = dataclasses.replace(cfg, source=cfg.train_source, root=cfg.train_root,
-                                    train_source=None, train_root=None, frame_list=None,
-                                    frame_range=None)  # fmt: skip
+    route_cfg = dataclasses.replace(
+        cfg,
+        source=cfg.train_source,
+        root=cfg.train_root,
+        train_source=None,
+        train_root=None,
+        frame_list=None,
+        frame_range=None,
+    )
     return load_route(route_cfg, seed, log)
 
 

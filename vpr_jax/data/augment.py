@@ -20,8 +20,15 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
-__all__ = ["TABLE2", "AugmentConfig", "augment_batch", "augment_one", "flip_image", "max_shift",
-           "shift_image"]
+__all__ = [
+    "TABLE2",
+    "AugmentConfig",
+    "augment_batch",
+    "augment_one",
+    "flip_image",
+    "max_shift",
+    "shift_image",
+]
 
 
 class AugmentConfig(NamedTuple):

@@ -17,8 +17,11 @@ from vpr_jax.data.route import Route
 from vpr_jax.ground_truth import MatchSets, Tolerance
 
 # The one pair each benchmark source has: (database side, query side).
-BENCHMARK_PAIRS = {"vpr_bench": ("ref", "query"), "positions": ("database", "queries"),
-                   "nordland_star": ("winter", "summer")}  # fmt: skip
+BENCHMARK_PAIRS = {
+    "vpr_bench": ("ref", "query"),
+    "positions": ("database", "queries"),
+    "nordland_star": ("winter", "summer"),
+}
 STAR_QUERY_STEP = 10  # Nordland*: every 10th summer frame is a query
 STAR_TOLERANCE = 1  # ... matching the winter references within +-1 frame
 
@@ -52,6 +55,13 @@ def star_partition(route: Route, db: str = "winter", query: str = "summer") -> B
     n = len(route)
     picks = np.arange(0, n, STAR_QUERY_STEP)
     truth = Tolerance.of(picks, np.arange(n), STAR_TOLERANCE).sets()
-    return Benchmark("nordland_star", db, query, route.images[db], route.images[query][picks],
-                     truth._replace(source=f"+-{STAR_TOLERANCE} frame (Nordland*)"),
-                     route.frame_ids, route.frame_ids[picks])
+    return Benchmark(
+        "nordland_star",
+        db,
+        query,
+        route.images[db],
+        route.images[query][picks],
+        truth._replace(source=f"+-{STAR_TOLERANCE} frame (Nordland*)"),
+        route.frame_ids,
+        route.frame_ids[picks],
+    )

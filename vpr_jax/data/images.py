@@ -37,22 +37,29 @@ def is_image_file(entry: os.DirEntry) -> bool:
     except OSError as err:
         if entry.is_symlink():
             what = "loops" if err.errno == errno.ELOOP else "points to a missing file"
-            raise UserError(f"image {entry.path} is a symbolic link that {what} "
-                            f"({os.readlink(entry.path)}): fix the link or remove it") from None
-        raise UserError(f"image {entry.path} cannot be read ({err.strerror}): check that it "
-                        "exists and that you may read it") from None
+            raise UserError(
+                f"image {entry.path} is a symbolic link that {what} "
+                f"({os.readlink(entry.path)}): fix the link or remove it"
+            ) from None
+        raise UserError(
+            f"image {entry.path} cannot be read ({err.strerror}): check that it "
+            "exists and that you may read it"
+        ) from None
     return False
 
 
 def check_pixels(what: str, width: int, height: int, max_pixels: int) -> None:
     if width * height > max_pixels:
-        raise UserError(f"{what} is {width:,} x {height:,} pixels, over data.max_pixels="
-                        f"{max_pixels:,}: shrink it (the suite reads every frame as 64x32) or "
-                        "raise data.max_pixels if this is meant")  # fmt: skip
+        raise UserError(
+            f"{what} is {width:,} x {height:,} pixels, over data.max_pixels="
+            f"{max_pixels:,}: shrink it (the suite reads every frame as 64x32) or "
+            "raise data.max_pixels if this is meant"
+        )
 
 
-def read_images(paths: list[Path], season: str, *, resize: bool,
-                 max_pixels: int = MAX_PIXELS) -> tuple[np.ndarray, int]:
+def read_images(
+    paths: list[Path], season: str, *, resize: bool, max_pixels: int = MAX_PIXELS
+) -> tuple[np.ndarray, int]:
     """(N, 32, 64) float32 in [0, 1] and how many of the files were colour. Each file's
     size is read from its header first (``image_header``): an image over ``max_pixels``
     is refused before it is decoded."""
@@ -62,8 +69,10 @@ def read_images(paths: list[Path], season: str, *, resize: bool,
         try:
             size = image_size(path)
         except OSError as err:
-            raise UserError(f"image {path} cannot be read ({err.strerror}): check that it "
-                            "exists and that you may read it") from None  # fmt: skip
+            raise UserError(
+                f"image {path} cannot be read ({err.strerror}): check that it "
+                "exists and that you may read it"
+            ) from None
         if size is not None:
             check_pixels(f"image {path}", *size, max_pixels)
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -135,10 +144,15 @@ def list_images(folder: Path, what: str) -> list[Path]:
     """The image files in ``folder``, sorted by file name (Python's ``sorted``, as
     VPR-Bench lists them); hidden files and other extensions are left out."""
     with os.scandir(folder) as entries:
-        found = sorted((entry.name, Path(entry.path)) for entry in entries
-                       if not entry.name.startswith(".")
-                       and entry.name.lower().endswith(READ_EXTENSIONS) and is_image_file(entry))
+        found = sorted(
+            (entry.name, Path(entry.path))
+            for entry in entries
+            if not entry.name.startswith(".")
+            and entry.name.lower().endswith(READ_EXTENSIONS)
+            and is_image_file(entry)
+        )
     if not found:
-        raise UserError(f"{folder} holds no images: put {what} there as "
-                        f"{', '.join(READ_EXTENSIONS)} files")  # fmt: skip
+        raise UserError(
+            f"{folder} holds no images: put {what} there as {', '.join(READ_EXTENSIONS)} files"
+        )
     return [path for _, path in found]

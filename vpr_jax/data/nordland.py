@@ -69,14 +69,16 @@ LOG_EVERY_VIDEO_S = 3600  # a plain progress line per hour of video when not on 
 # public readers
 
 
-def load_nordland(source: str, root: PathLike, seasons: Sequence[str], *,
-                  cache_dir: PathLike | None, **options) -> Route:
+def load_nordland(
+    source: str, root: PathLike, seasons: Sequence[str], *, cache_dir: PathLike | None, **options
+) -> Route:
     """Read ``seasons`` of the route under ``root`` from ``source`` (one of :data:`SOURCES`);
     ``options`` (``frame_list``, ``frame_step``, ``log``) as for every reader, ``cache_dir``
     for videos only."""
     if source not in SOURCES:
-        raise UserError(f"unknown data source {source!r}: set data.source to one of "
-                        f"{', '.join(SOURCES)}")
+        raise UserError(
+            f"unknown data source {source!r}: set data.source to one of {', '.join(SOURCES)}"
+        )
     if source == "nordland_videos":
         return read_videos(root, seasons, cache_dir=cache_dir, **options)
     reader = read_image_release if source == "nordland_images" else read_folders
@@ -91,10 +93,15 @@ def read_image_release(root: PathLike, seasons: Sequence[str], **options) -> Rou
     must be exactly 64 wide and 32 high; colour PNGs are converted to grayscale.
     """
     return _read_image_folders(
-        "nordland_images", root, seasons, match=_release_id, resize=False,
+        "nordland_images",
+        root,
+        seasons,
+        match=_release_id,
+        resize=False,
         empty_hint="the 64x32 release names them images-00001.png ...; for other names or "
-                   "sizes set data.source=folders", **options,
-    )  # fmt: skip
+        "sizes set data.source=folders",
+        **options,
+    )
 
 
 def read_folders(root: PathLike, seasons: Sequence[str], **options) -> Route:
@@ -105,17 +112,30 @@ def read_folders(root: PathLike, seasons: Sequence[str], **options) -> Route:
     Images are converted to grayscale and resized to 64x32 with area interpolation.
     """
     return _read_image_folders(
-        "folders", root, seasons, match=_folder_id, resize=True,
+        "folders",
+        root,
+        seasons,
+        match=_folder_id,
+        resize=True,
         empty_hint="put the frames there as .png, .jpg or .jpeg files numbered in their names",
         **options,
-    )  # fmt: skip
+    )
 
 
-def _read_image_folders(source: str, root: PathLike, seasons: Sequence[str], *,
-                        match: Callable[[Path, str], int | None], empty_hint: str, resize: bool,
-                        frame_list: PathLike | None = None, frame_step: int = 1,
-                        frame_range: Sequence[int] | None = None,
-                        max_pixels: int = MAX_PIXELS, log: Log = print) -> Route:
+def _read_image_folders(
+    source: str,
+    root: PathLike,
+    seasons: Sequence[str],
+    *,
+    match: Callable[[Path, str], int | None],
+    empty_hint: str,
+    resize: bool,
+    frame_list: PathLike | None = None,
+    frame_step: int = 1,
+    frame_range: Sequence[int] | None = None,
+    max_pixels: int = MAX_PIXELS,
+    log: Log = print,
+) -> Route:
     """Index every season folder ({frame id: path}, names ``match`` maps to ids), align the
     seasons, then read only the frames kept."""
     seasons = _check_seasons(seasons)
@@ -124,17 +144,22 @@ def _read_image_folders(source: str, root: PathLike, seasons: Sequence[str], *,
     files = {}
     for season in seasons:
         folder = _season_dir(root, season, seasons)
-        files[season] = _index_files(folder, season, match=partial(match, folder),
-                                     empty_hint=empty_hint)  # fmt: skip
+        files[season] = _index_files(
+            folder, season, match=partial(match, folder), empty_hint=empty_hint
+        )
     ids = _align(
-        {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()}, frame_list, frame_step,
-        log, frame_range,
+        {s: np.fromiter(f, np.int64, len(f)) for s, f in files.items()},
+        frame_list,
+        frame_step,
+        log,
+        frame_range,
     )
     images, colour = {}, {}
     for season, by_id in files.items():
         paths = [by_id[int(i)] for i in ids]
-        images[season], colour[season] = read_images(paths, season, resize=resize,
-                                                      max_pixels=max_pixels)
+        images[season], colour[season] = read_images(
+            paths, season, resize=resize, max_pixels=max_pixels
+        )
     note_colour(colour, log)
     log(_summary(source, ids, seasons, root))
     return Route(ids, images)
@@ -173,8 +198,9 @@ def read_videos(
                 f"cannot create the video cache folder {cache} ({err.strerror}): "
                 f"set data.cache_dir=PATH to a writable folder"
             ) from None
-    raw = {season: _video_frames(videos[season], season, cache, log, max_pixels)
-           for season in seasons}  # fmt: skip
+    raw = {
+        season: _video_frames(videos[season], season, cache, log, max_pixels) for season in seasons
+    }
     ids = _align({s: r[1] for s, r in raw.items()}, frame_list, frame_step, log, frame_range)
     images = {}
     for season in seasons:
@@ -326,8 +352,10 @@ def _align(
         first, last = (int(v) for v in frame_range)
         kept = common[(common >= first) & (common <= last)]
         if kept.size == 0:
-            raise UserError(f"data.frame_range=[{first},{last}] keeps none of the frames "
-                            f"{common[0]}..{common[-1]}: choose a range inside them")
+            raise UserError(
+                f"data.frame_range=[{first},{last}] keeps none of the frames "
+                f"{common[0]}..{common[-1]}: choose a range inside them"
+            )
         common = kept
     return common[::frame_step]
 
@@ -451,8 +479,9 @@ def _grabbed(cap: cv2.VideoCapture) -> Iterator[int]:
         k += 1
 
 
-def _decode_video(video: Path, season: str, log: Log, max_pixels: int = MAX_PIXELS
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def _decode_video(
+    video: Path, season: str, log: Log, max_pixels: int = MAX_PIXELS
+) -> tuple[np.ndarray, np.ndarray]:
     """Sample one frame per second of video time: (frames (N, 32, 64) uint8, ids 0..N-1)."""
     cap = cv2.VideoCapture(str(video))
     try:

@@ -29,32 +29,51 @@ SIDES = ("database", "queries")
 LAYOUT = "database/, queries/, database.csv and queries.csv (name,x,y in metres)"
 
 
-def read_positions(root: str | os.PathLike, radius_m: float = 25.0, *,
-                   max_pixels: int = MAX_PIXELS, log: Log = print) -> Benchmark:
+def read_positions(
+    root: str | os.PathLike,
+    radius_m: float = 25.0,
+    *,
+    max_pixels: int = MAX_PIXELS,
+    log: Log = print,
+) -> Benchmark:
     root = Path(root).expanduser()
     if not root.is_dir():
-        raise UserError(f"data root {root} is not a folder: set data.root=PATH to the folder "
-                        f"holding {LAYOUT}")  # fmt: skip
+        raise UserError(
+            f"data root {root} is not a folder: set data.root=PATH to the folder holding {LAYOUT}"
+        )
     if not radius_m > 0:
         raise UserError(f"data.radius_m={radius_m} must be positive: e.g. data.radius_m=25")
     paths, xy = {}, {}
     for side in SIDES:
         if not (root / side).is_dir():
-            raise UserError(f"{root / side} is missing: data.source=positions reads {LAYOUT}; "
-                            "point data.root at such a folder")  # fmt: skip
+            raise UserError(
+                f"{root / side} is missing: data.source=positions reads {LAYOUT}; "
+                "point data.root at such a folder"
+            )
         paths[side] = list_images(root / side, f"the {side} images")
         xy[side] = _positions(root / f"{side}.csv", paths[side], log)
     truth = within_radius(xy["queries"], xy["database"], radius_m)
     images, colour = {}, {}
     for side in SIDES:
-        images[side], colour[side] = read_images(paths[side], side, resize=True,
-                                                 max_pixels=max_pixels)  # fmt: skip
+        images[side], colour[side] = read_images(
+            paths[side], side, resize=True, max_pixels=max_pixels
+        )
     note_colour(colour, log)
     unmatched = int((~truth.has_match()).sum())
-    log(f"positions: {len(paths['database']):,} database images, {len(paths['queries']):,} "
-        f"queries ({unmatched:,} with no database image within {radius_m:g} m) from {root}")
-    return Benchmark("positions", "database", "queries", images["database"], images["queries"],
-                     truth, np.arange(len(paths["database"])), np.arange(len(paths["queries"])))
+    log(
+        f"positions: {len(paths['database']):,} database images, {len(paths['queries']):,} "
+        f"queries ({unmatched:,} with no database image within {radius_m:g} m) from {root}"
+    )
+    return Benchmark(
+        "positions",
+        "database",
+        "queries",
+        images["database"],
+        images["queries"],
+        truth,
+        np.arange(len(paths["database"])),
+        np.arange(len(paths["queries"])),
+    )
 
 
 def _positions(csv_path: Path, images: list[Path], log: Log) -> np.ndarray:
@@ -77,17 +96,22 @@ def _positions(csv_path: Path, images: list[Path], log: Log) -> np.ndarray:
                 except (TypeError, ValueError):
                     x = y = math.nan
                 if not (math.isfinite(x) and math.isfinite(y)):
-                    raise UserError(f"{csv_path} line {reader.line_num}: the position of "
-                                    f"{name or 'an image'} is not two numbers x,y: {fix}")
+                    raise UserError(
+                        f"{csv_path} line {reader.line_num}: the position of "
+                        f"{name or 'an image'} is not two numbers x,y: {fix}"
+                    )
                 table[name] = (x, y)
     except (OSError, UnicodeDecodeError, csv.Error) as err:
         raise UserError(f"{csv_path} cannot be read ({err}): {fix}") from None
     missing = [p.name for p in images if p.name not in table]
     if missing:
-        raise UserError(f"{csv_path} has no position for {len(missing):,} image(s) in "
-                        f"{images[0].parent} (first: {missing[0]}): {fix}")  # fmt: skip
+        raise UserError(
+            f"{csv_path} has no position for {len(missing):,} image(s) in "
+            f"{images[0].parent} (first: {missing[0]}): {fix}"
+        )
     extra = len(table) - len(images)
     if extra > 0:
-        log(f"note: {csv_path} lists {extra:,} name(s) with no image in {images[0].parent}: "
-            "ignored")
+        log(
+            f"note: {csv_path} lists {extra:,} name(s) with no image in {images[0].parent}: ignored"
+        )
     return np.array([table[p.name] for p in images], np.float64)

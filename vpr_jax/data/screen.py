@@ -25,10 +25,13 @@ _BLOCK = 4096  # frames per pass: temporaries stay small on the full route
 
 def constant_frames(images: np.ndarray, max_std: float) -> np.ndarray:
     """(N,) bool: frames whose pixel standard deviation is at most ``max_std``."""
-    std = np.concatenate([
-        np.asarray(images[i : i + _BLOCK], dtype=np.float32).std(axis=(1, 2))
-        for i in range(0, len(images), _BLOCK)
-    ] or [np.zeros(0, np.float32)])
+    std = np.concatenate(
+        [
+            np.asarray(images[i : i + _BLOCK], dtype=np.float32).std(axis=(1, 2))
+            for i in range(0, len(images), _BLOCK)
+        ]
+        or [np.zeros(0, np.float32)]
+    )
     return std <= max_std
 
 
@@ -45,29 +48,35 @@ def _counts(masks: dict[str, np.ndarray]) -> str:
     return ", ".join(f"{s} {int(m.sum()):,}" for s, m in masks.items())
 
 
-def screen_route(
-    route: Route, *, max_std: float, drop: bool, log: Log = print
-) -> Route:
+def screen_route(route: Route, *, max_std: float, drop: bool, log: Log = print) -> Route:
     """Report constant and repeated frames; with ``drop``, remove the places where any season
     shows a constant frame. Returns the route unchanged when nothing is dropped."""
     constant = {s: constant_frames(im, max_std) for s, im in route.images.items()}
     # A tunnel's black frames repeat each other too; they count as constant only.
     repeated = {s: repeated_frames(im) & ~constant[s] for s, im in route.images.items()}
     if any(m.any() for m in repeated.values()):
-        log(f"repeated frames (the same image as the frame before, e.g. a train standing at a "
-            f"station): {_counts(repeated)}; kept, and scored by frame number like any other")
+        log(
+            f"repeated frames (the same image as the frame before, e.g. a train standing at a "
+            f"station): {_counts(repeated)}; kept, and scored by frame number like any other"
+        )
     bad = np.logical_or.reduce(list(constant.values()))
     if not bad.any():
         return route
-    what = (f"constant frames (pixel std <= data.constant_std={max_std:g}: black, "
-            f"over-exposed or blank): {_counts(constant)}, at {int(bad.sum()):,} places")
+    what = (
+        f"constant frames (pixel std <= data.constant_std={max_std:g}: black, "
+        f"over-exposed or blank): {_counts(constant)}, at {int(bad.sum()):,} places"
+    )
     if not drop:
         log(f"{what}; kept (data.drop_constant_frames=true drops them)")
         return route
     keep = ~bad
     if not keep.any():
-        raise UserError(f"every frame is constant (pixel std <= {max_std:g}), nothing is left "
-                        "to match: check data.root, or lower data.constant_std")
-    log(f"{what}; dropped from every season (data.drop_constant_frames=true), "
-        f"{int(keep.sum()):,} places left")
+        raise UserError(
+            f"every frame is constant (pixel std <= {max_std:g}), nothing is left "
+            "to match: check data.root, or lower data.constant_std"
+        )
+    log(
+        f"{what}; dropped from every season (data.drop_constant_frames=true), "
+        f"{int(keep.sum()):,} places left"
+    )
     return Route(route.frame_ids[keep], {s: im[keep] for s, im in route.images.items()})

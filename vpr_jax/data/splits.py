@@ -30,8 +30,9 @@ def make_split(frame_ids: np.ndarray, cfg: SplitConfig) -> Split:
     return _hold_out_validation(frame_ids, stretch, test, cfg.val_fraction, cfg.gap)
 
 
-def _hold_out_validation(frame_ids: np.ndarray, stretch: np.ndarray, test: np.ndarray,
-                         fraction: float, gap: int) -> Split:
+def _hold_out_validation(
+    frame_ids: np.ndarray, stretch: np.ndarray, test: np.ndarray, fraction: float, gap: int
+) -> Split:
     """The last ``fraction`` of the training stretch validates; the training places more
     than ``gap`` frames before its first frame are fitted on."""
     n_val = max(1, round(fraction * len(stretch)))
@@ -42,7 +43,8 @@ def _hold_out_validation(frame_ids: np.ndarray, stretch: np.ndarray, test: np.nd
         raise UserError(
             f"the training stretch of {len(stretch)} frames leaves {len(fit)} to fit on after "
             f"{n_val} validation frames (split.val_fraction={fraction}) and a gap of {gap}: "
-            "raise split.n_train, or lower split.val_fraction or split.gap")
+            "raise split.n_train, or lower split.val_fraction or split.gap"
+        )
     return Split(fit, test, val)
 
 
@@ -52,8 +54,10 @@ def _train_and_test(frame_ids: np.ndarray, cfg: SplitConfig) -> tuple[np.ndarray
     n = len(frame_ids)
     n_train = round(cfg.train_fraction * n) if cfg.train_fraction is not None else cfg.n_train
     if not 2 <= n_train < n:
-        raise UserError(f"split needs 2 <= training frames < {n} route frames, got {n_train}: "
-                        "lower split.n_train or change split.train_fraction")
+        raise UserError(
+            f"split needs 2 <= training frames < {n} route frames, got {n_train}: "
+            "lower split.n_train or change split.train_fraction"
+        )
     first_test = int(np.searchsorted(frame_ids, frame_ids[n_train - 1] + cfg.gap, side="right"))
     available = n - first_test
     n_test = available if cfg.train_fraction is not None else cfg.n_test
@@ -61,12 +65,14 @@ def _train_and_test(frame_ids: np.ndarray, cfg: SplitConfig) -> tuple[np.ndarray
         raise UserError(
             f"the route has {n} frames but the split needs {n_train} training + a gap of "
             f"{cfg.gap} frames + {n_test} test: lower split.n_train / split.n_test / split.gap "
-            "or load more frames (data.n_frames, data.frame_step)")
+            "or load more frames (data.n_frames, data.frame_step)"
+        )
     return np.arange(n_train), np.arange(first_test, first_test + n_test)
 
 
-def _sections(frame_ids: np.ndarray, n_sections: int, length: int, gap: int
-              ) -> tuple[np.ndarray, np.ndarray]:
+def _sections(
+    frame_ids: np.ndarray, n_sections: int, length: int, gap: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Olid et al.'s partition: ``n_sections`` test sections of ``length`` frames centred at
     (i + 1/2) / n_sections of the route; training = every frame more than ``gap`` original
     frame indices away from every test frame."""

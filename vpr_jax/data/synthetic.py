@@ -89,9 +89,17 @@ _TRAVERSAL_DRIFT = {
     "clouds": 0.15,  # cloud cover
 }
 _DRIFT_SCALE = {  # frames over which each nuisance changes
-    "jitter": 20.0, "shift": 90.0, "pitch": 70.0, "light": 35.0, "sky": 50.0, "gain": 45.0,
-    "offset": 30.0, "hgrad": 40.0, "vgrad": 40.0, "clouds": 60.0,
-}  # fmt: skip
+    "jitter": 20.0,
+    "shift": 90.0,
+    "pitch": 70.0,
+    "light": 35.0,
+    "sky": 50.0,
+    "gain": 45.0,
+    "offset": 30.0,
+    "hgrad": 40.0,
+    "vgrad": 40.0,
+    "clouds": 60.0,
+}
 _AUTO_EXPOSURE, _AE_TARGET = 0.7, 0.45  # share of the way to the target mean brightness
 _NOISE = 0.018  # sensor noise per table (two tables add up)
 _BALLAST, _RAIL_X, _RAIL_W = 0.62, 0.36, 0.035  # ballast half-width, rail offset, half-width

@@ -27,16 +27,20 @@ GROUND_TRUTH = "ground_truth_new.npy"
 LAYOUT = "ref/, query/ and ground_truth_new.npy (VPR-Bench's layout)"
 
 
-def read_vpr_bench(root: str | os.PathLike, *, max_pixels: int = MAX_PIXELS,
-                   log: Log = print) -> Benchmark:
+def read_vpr_bench(
+    root: str | os.PathLike, *, max_pixels: int = MAX_PIXELS, log: Log = print
+) -> Benchmark:
     root = Path(root).expanduser()
     if not root.is_dir():
-        raise UserError(f"data root {root} is not a folder: set data.root=PATH to the folder "
-                        f"holding {LAYOUT}")  # fmt: skip
+        raise UserError(
+            f"data root {root} is not a folder: set data.root=PATH to the folder holding {LAYOUT}"
+        )
     for side in ("ref", "query"):
         if not (root / side).is_dir():
-            raise UserError(f"{root / side} is missing: data.source=vpr_bench reads {LAYOUT}; "
-                            "point data.root at such a folder")  # fmt: skip
+            raise UserError(
+                f"{root / side} is missing: data.source=vpr_bench reads {LAYOUT}; "
+                "point data.root at such a folder"
+            )
     refs = list_images(root / "ref", "the reference (database) images")
     queries = list_images(root / "query", "the query images")
     rows = _ground_truth(root / GROUND_TRUTH, len(queries), len(refs), root)
@@ -45,16 +49,21 @@ def read_vpr_bench(root: str | os.PathLike, *, max_pixels: int = MAX_PIXELS,
     query, colour_q = read_images(queries, "query", resize=True, max_pixels=max_pixels)
     note_colour({"ref": colour_db, "query": colour_q}, log)
     unmatched = int((~truth.has_match()).sum())
-    log(f"vpr_bench: {len(refs):,} references, {len(queries):,} queries "
-        f"({unmatched:,} without a correct reference) from {root}")  # fmt: skip
-    return Benchmark("vpr_bench", "ref", "query", db, query, truth,
-                     np.arange(len(refs)), np.arange(len(queries)))
+    log(
+        f"vpr_bench: {len(refs):,} references, {len(queries):,} queries "
+        f"({unmatched:,} without a correct reference) from {root}"
+    )
+    return Benchmark(
+        "vpr_bench", "ref", "query", db, query, truth, np.arange(len(refs)), np.arange(len(queries))
+    )
 
 
 def _ground_truth(path: Path, n_query: int, n_ref: int, root: Path) -> list[list[int]]:
     """One list of correct reference indices per query (empty for queries not in the file)."""
-    fix = (f"write {GROUND_TRUTH} as VPR-Bench does: an object array of rows (query_index, "
-           "[ref_index, ...])")
+    fix = (
+        f"write {GROUND_TRUTH} as VPR-Bench does: an object array of rows (query_index, "
+        "[ref_index, ...])"
+    )
     if not path.is_file():
         raise UserError(f"{path} is missing: data.source=vpr_bench reads {LAYOUT}; {fix}")
     try:
@@ -68,17 +77,22 @@ def _ground_truth(path: Path, n_query: int, n_ref: int, root: Path) -> list[list
             q = int(row[0])
             refs = [int(j) for j in np.atleast_1d(np.asarray(row[1])).ravel()]
         except (TypeError, ValueError, IndexError):
-            raise UserError(f"{path} row {r} is not (query_index, [ref_index, ...]): {fix}"
-                            ) from None
+            raise UserError(
+                f"{path} row {r} is not (query_index, [ref_index, ...]): {fix}"
+            ) from None
         if not 0 <= q < n_query:
-            raise UserError(f"{path} row {r} names query image {q}, but {root / 'query'} "
-                            f"holds {n_query:,} images (0..{n_query - 1}): fix the file or "
-                            "put the missing images back")  # fmt: skip
+            raise UserError(
+                f"{path} row {r} names query image {q}, but {root / 'query'} "
+                f"holds {n_query:,} images (0..{n_query - 1}): fix the file or "
+                "put the missing images back"
+            )
         bad = [j for j in refs if not 0 <= j < n_ref]
         if bad:
-            raise UserError(f"{path} row {r} (query {q}) names reference image {bad[0]}, but "
-                            f"{root / 'ref'} holds {n_ref:,} images (0..{n_ref - 1}): fix the "
-                            "file or put the missing images back")  # fmt: skip
+            raise UserError(
+                f"{path} row {r} (query {q}) names reference image {bad[0]}, but "
+                f"{root / 'ref'} holds {n_ref:,} images (0..{n_ref - 1}): fix the "
+                "file or put the missing images back"
+            )
         if q in seen:
             raise UserError(f"{path} lists query {q} twice (row {r}): keep one row per query")
         seen.add(q)

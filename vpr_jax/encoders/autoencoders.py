@@ -114,8 +114,9 @@ def depth_to_space(x: Float[Array, "n h w cff"], f: int) -> Float[Array, "n hf w
 
 def _conv(n_in: int, n_out: int, k: int, rngs: nnx.Rngs) -> nnx.Conv:
     """k x k, stride 1, SAME; its kernel gradient is fast on CPU (see encoders/conv.py)."""
-    return nnx.Conv(n_in, n_out, (k, k), padding="SAME", conv_general_dilated=conv_general_dilated,
-                    rngs=rngs)  # fmt: skip
+    return nnx.Conv(
+        n_in, n_out, (k, k), padding="SAME", conv_general_dilated=conv_general_dilated, rngs=rngs
+    )
 
 
 class CAE(nnx.Module):
@@ -126,15 +127,13 @@ class CAE(nnx.Module):
         self.standardise = bool(spec.standardise)
         widths = (self.block**2, *spec.channels)
         self.down = nnx.List(
-            _conv(widths[i], widths[i + 1], k, rngs)
-            for i, k in enumerate(spec.kernel_sizes)
+            _conv(widths[i], widths[i + 1], k, rngs) for i, k in enumerate(spec.kernel_sizes)
         )
         self.to_code = _conv(widths[-1], spec.code_channels, 3, rngs)
         self.from_code = _conv(spec.code_channels, widths[-1], 3, rngs)
         # Up level i maps widths[i + 1] -> widths[i], mirroring down level i.
         self.up = nnx.List(
-            _conv(widths[i + 1], widths[i], k, rngs)
-            for i, k in enumerate(spec.kernel_sizes)
+            _conv(widths[i + 1], widths[i], k, rngs) for i, k in enumerate(spec.kernel_sizes)
         )
 
     def _code_map(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n hc wc c"]:
@@ -208,9 +207,11 @@ def build(spec: Spec, key: jax.Array, image_shape: Sequence[int] = IMAGE_SHAPE):
     if isinstance(spec, CAESpec):
         down = 2 ** len(spec.channels) * spec.space_to_depth
         if image_shape[0] % down or image_shape[1] % down:
-            raise ValueError(f"CAE with {len(spec.channels)} levels after {spec.space_to_depth}"
-                             f"x{spec.space_to_depth} blocks needs image sides divisible by "
-                             f"{down}, got {image_shape}")  # fmt: skip
+            raise ValueError(
+                f"CAE with {len(spec.channels)} levels after {spec.space_to_depth}"
+                f"x{spec.space_to_depth} blocks needs image sides divisible by "
+                f"{down}, got {image_shape}"
+            )
     graphdef, _ = nnx.split(nnx.eval_shape(lambda: _module(spec, key, image_shape)))
     return graphdef, _init_params(spec, key, image_shape)
 

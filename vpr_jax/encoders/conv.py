@@ -46,9 +46,11 @@ def _lax_conv(x: Array, w: Array, pads: Pads) -> Array:
 
 
 def kernel_gradient(
-    x: Float[Array, "n h w c"], dy: Float[Array, "n ho wo o"], kernel_hw: tuple[int, int],
+    x: Float[Array, "n h w c"],
+    dy: Float[Array, "n ho wo o"],
+    kernel_hw: tuple[int, int],
     pads: Pads,
-) -> Float[Array, "kh kw c o"]:  # fmt: skip
+) -> Float[Array, "kh kw c o"]:
     """d(sum(dy * conv(x, W))) / dW of a stride-1 convolution: one product per kernel tap."""
     (kh, kw), (ho, wo) = kernel_hw, dy.shape[1:3]
     xp = jnp.pad(x, ((0, 0), *pads, (0, 0)))
@@ -103,9 +105,17 @@ def _is_nhwc(dimension_numbers, lhs_shape, rhs_shape) -> bool:
 
 
 def conv_general_dilated(
-    lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=None,
-    dimension_numbers=None, feature_group_count=1, precision=None, **kwargs,
-):  # fmt: skip
+    lhs,
+    rhs,
+    window_strides,
+    padding,
+    lhs_dilation=None,
+    rhs_dilation=None,
+    dimension_numbers=None,
+    feature_group_count=1,
+    precision=None,
+    **kwargs,
+):
     """``jax.lax.conv_general_dilated``, taking the fast kernel gradient where it applies."""
     ones = (1,) * (lhs.ndim - 2)
     fast = (
@@ -122,9 +132,17 @@ def conv_general_dilated(
     )
     if not fast:
         return lax.conv_general_dilated(
-            lhs, rhs, window_strides, padding, lhs_dilation, rhs_dilation,
-            dimension_numbers, feature_group_count, precision=precision, **kwargs,
-        )  # fmt: skip
+            lhs,
+            rhs,
+            window_strides,
+            padding,
+            lhs_dilation,
+            rhs_dilation,
+            dimension_numbers,
+            feature_group_count,
+            precision=precision,
+            **kwargs,
+        )
     if isinstance(padding, str):
         pads = lax.padtype_to_pads(lhs.shape[1:3], rhs.shape[:2], (1, 1), padding)
     else:

@@ -60,8 +60,10 @@ def fit_diff_pca(
     rank = difference_rank(*a.shape)
     n_components = rank if n_components is None else n_components
     if not 1 <= n_components <= rank:
-        raise ValueError(f"n_components={n_components} outside 1..{rank} for {len(a)} aligned "
-                         f"places of {a.shape[1]} pixels")  # fmt: skip
+        raise ValueError(
+            f"n_components={n_components} outside 1..{rank} for {len(a)} aligned "
+            f"places of {a.shape[1]} pixels"
+        )
     diff = a - b
     # PCA of the differences and their negatives: the mean is exactly zero, so the
     # covariance it diagonalises is the second moment of the differences.

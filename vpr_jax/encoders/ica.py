@@ -161,9 +161,7 @@ def data_rank(state: pca.PCAState, n_samples: int) -> int:
     return int(np.sum(var > var[0] * eps * eps)) if var.size and var[0] > 0 else 0
 
 
-def resolve_n_components(
-    n_components: int | str | None, removed_pcs: int, rank: int
-) -> int:
+def resolve_n_components(n_components: int | str | None, removed_pcs: int, rank: int) -> int:
     """``"all"`` / None -> every component left after removal; check an explicit count."""
     left = rank - removed_pcs
     if n_components in (None, "all"):
@@ -185,9 +183,11 @@ def resolve_n_components(
 
 @functools.partial(jax.jit, static_argnames=("n_components",))
 def whitening_matrix(
-    state: pca.PCAState, n_samples: int | Int[Array, ""], removed_pcs: int | Int[Array, ""],
+    state: pca.PCAState,
+    n_samples: int | Int[Array, ""],
+    removed_pcs: int | Int[Array, ""],
     n_components: int,
-) -> Float[Array, "c d"]:  # fmt: skip
+) -> Float[Array, "c d"]:
     """Rows: PCA components k..k+c-1 over their population standard deviation.
 
     ``removed_pcs`` is traced: a sweep over k compiles this once per component count."""

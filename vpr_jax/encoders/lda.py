@@ -38,9 +38,7 @@ class LDAState(NamedTuple):
     within_variance: Float[Array, " m"]  # eigenvalues of the regularised within-place scatter
 
 
-def within_place_scatter(
-    za: Float[Array, "n m"], zb: Float[Array, "n m"]
-) -> Float[Array, "m m"]:
+def within_place_scatter(za: Float[Array, "n m"], zb: Float[Array, "n m"]) -> Float[Array, "m m"]:
     """Each place's scatter about its own mean, averaged over places (two images a place)."""
     diff = za - zb
     return diff.T @ diff / (4 * za.shape[0])

@@ -61,15 +61,17 @@ SUBSPACE_OVERSAMPLE = 40  # extra directions the range finder carries (Halko et 
 SUBSPACE_POWER_ITERATIONS = 4  # scatter products before the Rayleigh-Ritz step
 
 
-def choose_solver(n_samples: int, n_features: int, solver: Solver = "auto",
-                  n_components: int | None = None) -> str:
+def choose_solver(
+    n_samples: int, n_features: int, solver: Solver = "auto", n_components: int | None = None
+) -> str:
     """The solver ``auto`` stands for (see the module docstring), or ``solver`` checked."""
     if solver not in SOLVERS:
         raise ValueError(f"unknown PCA solver {solver!r}: use {', '.join(SOLVERS)}")
     if solver != "auto":
         return solver
     few = n_components is not None and (
-        4 * (n_components + SUBSPACE_OVERSAMPLE) <= rank_limit(n_samples, n_features))
+        4 * (n_components + SUBSPACE_OVERSAMPLE) <= rank_limit(n_samples, n_features)
+    )
     if few:
         return "subspace"
     return "gram" if n_samples < n_features else "covariance"
@@ -126,8 +128,11 @@ def _sharded_moments(mesh, block_rows: int):
         first = jax.lax.axis_index(AXIS) * x.shape[0]
         return mean, jax.lax.psum(_scatter(x, mean, n, first, block_rows), AXIS)
 
-    return jax.jit(jax.shard_map(local, mesh=mesh, in_specs=(P(AXIS), P()),
-                                 out_specs=(P(), P()), check_vma=False))  # fmt: skip
+    return jax.jit(
+        jax.shard_map(
+            local, mesh=mesh, in_specs=(P(AXIS), P()), out_specs=(P(), P()), check_vma=False
+        )
+    )
 
 
 @functools.partial(jax.jit, static_argnames=("n_components",))
@@ -248,8 +253,13 @@ def fit_pca(
     if chosen == "gram":
         return _fit_gram(x, n_components)
     if chosen == "subspace":
-        return _fit_subspace(jnp.asarray(x), jax.random.key(seed), n_components,
-                             SUBSPACE_POWER_ITERATIONS, SUBSPACE_OVERSAMPLE)  # fmt: skip
+        return _fit_subspace(
+            jnp.asarray(x),
+            jax.random.key(seed),
+            n_components,
+            SUBSPACE_POWER_ITERATIONS,
+            SUBSPACE_OVERSAMPLE,
+        )
     if mesh is None:
         mean, scatter = _moments(x, block_rows)
     else:

@@ -22,7 +22,8 @@ def load_encoder(checkpoint_dir: str | Path):
     try:
         spec = ae.spec_from_json(meta["spec"])
     except (KeyError, TypeError, ValueError) as err:
-        raise UserError(f"{checkpoint_dir} holds no auto-encoder this suite knows ({err})") \
-            from None
+        raise UserError(
+            f"{checkpoint_dir} holds no auto-encoder this suite knows ({err})"
+        ) from None
     graphdef, like = ae.build(spec, jax.random.key(0), tuple(meta["image_shape"]))
     return ae.make_encode(graphdef), checkpoints.restore_model(checkpoint_dir, like)

@@ -159,11 +159,11 @@ def check_batch_splits(batch_size: int, mesh: Mesh | None, images_per_example: i
     (a cross_season example is a place's two images)."""
     step = sharding.mesh_size(mesh) * images_per_example
     if batch_size % step:
-        raise UserError(f"train.batch_size={batch_size} does not split over "
-                        f"{sharding.mesh_size(mesh)} devices: use a multiple of {step}, or "
-                        "set mesh.devices")
-
-
+        raise UserError(
+            f"train.batch_size={batch_size} does not split over "
+            f"{sharding.mesh_size(mesh)} devices: use a multiple of {step}, or "
+            "set mesh.devices"
+        )
 
 
 def _examples(images: np.ndarray, n: int) -> np.ndarray:
@@ -185,8 +185,13 @@ class Trainer(NamedTuple):
 
 
 def make_trainer(
-    spec: ae.Spec, image_shape: tuple[int, int], n_train: int, key: jax.Array,
-    settings: TrainConfig, mesh: Mesh | None = None, objective: str = "reconstruct",
+    spec: ae.Spec,
+    image_shape: tuple[int, int],
+    n_train: int,
+    key: jax.Array,
+    settings: TrainConfig,
+    mesh: Mesh | None = None,
+    objective: str = "reconstruct",
 ) -> tuple[Trainer, TrainState]:
     """The model's compiled steps and its initial state (weights drawn from ``key``).
     ``n_train`` counts examples; a step sees ``train.batch_size`` images, so a cross_season
@@ -196,10 +201,16 @@ def make_trainer(
     per_step = max(1, settings.batch_size // objectives.examples_per_image(objective))
     batch_size = min(per_step, n_train)
     augment = AugmentConfig() if settings.augment else None
-    trainer = Trainer(graphdef, objective, make_train_step(graphdef, tx, augment, mesh, objective),
-                      make_eval_loss(graphdef, batch_size, objective),
-                      ae.make_reconstruct(graphdef), settings, batch_size,
-                      n_train // batch_size)  # fmt: skip
+    trainer = Trainer(
+        graphdef,
+        objective,
+        make_train_step(graphdef, tx, augment, mesh, objective),
+        make_eval_loss(graphdef, batch_size, objective),
+        ae.make_reconstruct(graphdef),
+        settings,
+        batch_size,
+        n_train // batch_size,
+    )
     return trainer, TrainState(params, tx.init(params), params, math.inf, 0, 0, 0, 0.0)
 
 
@@ -207,12 +218,20 @@ def make_trainer(
 _OLD_META = {"objective": "reconstruct"}
 
 
-def checkpoint_meta(spec: ae.Spec, image_shape: tuple[int, int], identity: dict | None,
-                    objective: str = "reconstruct") -> dict:
+def checkpoint_meta(
+    spec: ae.Spec,
+    image_shape: tuple[int, int],
+    identity: dict | None,
+    objective: str = "reconstruct",
+) -> dict:
     """What a checkpoint must hold to be reused: the same model, image shape, objective and
     identity."""
-    return {"spec": ae.spec_to_json(spec), "image_shape": list(image_shape),
-            "objective": objective, "identity": plain(identity or {})}  # fmt: skip
+    return {
+        "spec": ae.spec_to_json(spec),
+        "image_shape": list(image_shape),
+        "objective": objective,
+        "identity": plain(identity or {}),
+    }
 
 
 def _known_spec(data) -> dict | None:
@@ -241,7 +260,10 @@ def _as_of_today(saved, current):
 
 
 def init_or_restore(
-    fresh: TrainState, checkpoint_dir: Path | None, meta: dict, log: TrainingLog | None,
+    fresh: TrainState,
+    checkpoint_dir: Path | None,
+    meta: dict,
+    log: TrainingLog | None,
     name: str,
 ) -> tuple[TrainState, dict | None]:
     """The checkpoint's newest state and its metadata (``done`` says whether training
@@ -254,18 +276,27 @@ def init_or_restore(
     saved = {**_OLD_META, **saved, "spec": _known_spec(saved.get("spec"))}
     saved["identity"] = _as_of_today(saved.get("identity"), meta.get("identity"))
     if any(saved.get(k) != v for k, v in meta.items()):
-        raise UserError(f"{checkpoint_dir} holds a model trained on other data or settings: "
-                        "delete that folder, or set train.checkpoint_dir=PATH to keep both")
+        raise UserError(
+            f"{checkpoint_dir} holds a model trained on other data or settings: "
+            "delete that folder, or set train.checkpoint_dir=PATH to keep both"
+        )
     state, saved = checkpoints.restore(checkpoint_dir, fresh)
     if log is not None:
-        log.line(f"{name}: restored the trained model from {checkpoint_dir}" if saved["done"]
-                 else f"{name}: resuming after epoch {state.epoch} (step {state.step})")
+        log.line(
+            f"{name}: restored the trained model from {checkpoint_dir}"
+            if saved["done"]
+            else f"{name}: resuming after epoch {state.epoch} (step {state.step})"
+        )
     return state, saved
 
 
 def train_epoch(
-    trainer: Trainer, state: TrainState, train_dev: Array, key: jax.Array,
-    log: TrainingLog | None, name: str,
+    trainer: Trainer,
+    state: TrainState,
+    train_dev: Array,
+    key: jax.Array,
+    log: TrainingLog | None,
+    name: str,
 ) -> tuple[TrainState, np.ndarray]:
     """One shuffled pass over the training set; returns the state and each step's loss."""
     epoch = state.epoch + 1
@@ -281,15 +312,17 @@ def train_epoch(
             losses.append(metrics["loss"])  # on the device until the epoch ends: no waits
             if log is not None and epoch == 1 and s == 0 and trainer.settings.augment:
                 shown, _ = objectives.inputs_and_targets(
-                    trainer.objective, sharding.to_host(metrics["inputs"]))
+                    trainer.objective, sharding.to_host(metrics["inputs"])
+                )
                 log.images("inputs/augmented", _examples(np.asarray(shown), 8), state.step + 1)
             bar.advance()
     losses = np.asarray(jnp.stack(losses)) if losses else np.zeros(0)
     if log is not None:
         for i, loss in enumerate(losses):
             log.scalar("loss/train", float(loss), state.step + 1 + i)
-    state = state._replace(params=params, opt_state=opt_state, epoch=epoch,
-                           step=state.step + len(losses))  # fmt: skip
+    state = state._replace(
+        params=params, opt_state=opt_state, epoch=epoch, step=state.step + len(losses)
+    )
     return state, losses
 
 
@@ -298,8 +331,9 @@ def evaluate(trainer: Trainer, state: TrainState, val_images: np.ndarray) -> flo
     return trainer.eval_loss(state.params, val_images)
 
 
-def end_epoch(state: TrainState, val_loss: float, settings: TrainConfig
-              ) -> tuple[TrainState, bool, bool]:
+def end_epoch(
+    state: TrainState, val_loss: float, settings: TrainConfig
+) -> tuple[TrainState, bool, bool]:
     """Keep the best parameters and count epochs without improvement: (state, stopped
     early, done)."""
     if val_loss < state.best_val:
@@ -310,23 +344,36 @@ def end_epoch(state: TrainState, val_loss: float, settings: TrainConfig
     return state, stopped_early, stopped_early or state.epoch == settings.epochs
 
 
-def log_epoch(trainer: Trainer, state: TrainState, losses: np.ndarray, val_loss: float,
-              val_examples: np.ndarray, log: TrainingLog, name: str) -> None:
+def log_epoch(
+    trainer: Trainer,
+    state: TrainState,
+    losses: np.ndarray,
+    val_loss: float,
+    val_examples: np.ndarray,
+    log: TrainingLog,
+    name: str,
+) -> None:
     """The validation loss, six validation examples in rows of input | target | output
     (reconstruct: the images over their reconstructions; cross_season: both seasons, their
     mean, the output for each season), one line."""
     log.scalar("loss/validation", val_loss, state.step)
     shown = _examples(val_examples, 6)
-    inputs, targets = (np.asarray(x) for x in
-                       objectives.inputs_and_targets(trainer.objective, shown))  # fmt: skip
+    inputs, targets = (
+        np.asarray(x) for x in objectives.inputs_and_targets(trainer.objective, shown)
+    )
     outputs = np.asarray(trainer.reconstruct(state.params, inputs))
-    rows = [inputs, outputs] if trainer.objective == "reconstruct" else \
-        [inputs, targets[: len(shown)], outputs]
+    rows = (
+        [inputs, outputs]
+        if trainer.objective == "reconstruct"
+        else [inputs, targets[: len(shown)], outputs]
+    )
     log.images("reconstructions/validation", np.concatenate(rows), state.step)
     train_loss = float(np.mean(losses)) if len(losses) else math.nan
     best = "  (best)" if state.bad_epochs == 0 else ""
-    log.line(f"{name} epoch {state.epoch}/{trainer.settings.epochs}: train loss "
-             f"{train_loss:.5f}  validation loss {val_loss:.5f}{best}")  # fmt: skip
+    log.line(
+        f"{name} epoch {state.epoch}/{trainer.settings.epochs}: train loss "
+        f"{train_loss:.5f}  validation loss {val_loss:.5f}{best}"
+    )
 
 
 def _on_devices(train_images: np.ndarray, state: TrainState, mesh: Mesh | None):
@@ -335,9 +382,11 @@ def _on_devices(train_images: np.ndarray, state: TrainState, mesh: Mesh | None):
     if mesh is None:
         return jnp.asarray(train_images), state
     params, opt_state, best = sharding.replicate(
-        (state.params, state.opt_state, state.best_params), mesh)  # fmt: skip
+        (state.params, state.opt_state, state.best_params), mesh
+    )
     return sharding.replicate(train_images, mesh), state._replace(
-        params=params, opt_state=opt_state, best_params=best)  # fmt: skip
+        params=params, opt_state=opt_state, best_params=best
+    )
 
 
 def fit_autoencoder(
@@ -372,9 +421,17 @@ def fit_autoencoder(
     meta = checkpoint_meta(spec, shape, identity, objective)
     state, saved = init_or_restore(fresh, checkpoint_dir, meta, log, name)
     if saved is not None and saved["done"]:
-        return TrainResult(trainer.graphdef, state.best_params, state.epoch, state.step,
-                           state.best_val, saved["stopped_early"], True, state.epoch,
-                           state.seconds)  # fmt: skip
+        return TrainResult(
+            trainer.graphdef,
+            state.best_params,
+            state.epoch,
+            state.step,
+            state.best_val,
+            saved["stopped_early"],
+            True,
+            state.epoch,
+            state.seconds,
+        )
     resumed_epoch, spent = state.epoch, state.seconds
     check_batch_splits(trainer.batch_size, mesh)
     train_dev, state = _on_devices(train_images, state, mesh)
@@ -390,12 +447,27 @@ def fit_autoencoder(
         state = state._replace(seconds=spent + time.perf_counter() - start)
         due = time.perf_counter() - last_save >= settings.checkpoint_every_s
         if checkpoint_dir is not None and (due or done):
-            summary = {"epoch": state.epoch, "step": state.step, "best_val_loss": state.best_val,
-                       "bad_epochs": state.bad_epochs, "done": done,
-                       "stopped_early": stopped_early, "train_seconds": state.seconds}
+            summary = {
+                "epoch": state.epoch,
+                "step": state.step,
+                "best_val_loss": state.best_val,
+                "bad_epochs": state.bad_epochs,
+                "done": done,
+                "stopped_early": stopped_early,
+                "train_seconds": state.seconds,
+            }
             checkpoints.save(checkpoint_dir, state.epoch, state, {**meta, **summary})
             last_save = time.perf_counter()
         if done:
             break
-    return TrainResult(trainer.graphdef, state.best_params, state.epoch, state.step,
-                       state.best_val, stopped_early, False, resumed_epoch, state.seconds)
+    return TrainResult(
+        trainer.graphdef,
+        state.best_params,
+        state.epoch,
+        state.step,
+        state.best_val,
+        stopped_early,
+        False,
+        resumed_epoch,
+        state.seconds,
+    )
