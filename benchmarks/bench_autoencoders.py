@@ -42,7 +42,11 @@ from vpr_jax.encoders.train import make_optimizer, make_train_step
 def _cae(model: str, **changes) -> ae.CAESpec:
     cfg = CAEConfig(model=model, **changes)
     return ae.CAESpec(
-        cfg.channels, cfg.kernel_sizes, cfg.code_channels, cfg.space_to_depth, cfg.standardise
+        channels=cfg.channels,
+        kernel_sizes=cfg.kernel_sizes,
+        code_channels=cfg.code_channels,
+        space_to_depth=cfg.space_to_depth,
+        standardise=cfg.standardise,
     )
 
 

@@ -27,8 +27,8 @@ from common import seed_route, timed
 from peers import FORCING, ours_report, run_peer
 
 from vpr_jax.encoders import pca
-from vpr_jax.matching import top_k_matches
-from vpr_jax.metrics import evaluate_top_k
+from vpr_jax.evaluation.matching import top_k_matches
+from vpr_jax.evaluation.metrics import evaluate_top_k
 
 REMOVED_PCS = (0, 5, 10, 20, 50, 100)
 

@@ -4,7 +4,7 @@
 
 The peer is tests/sequence_reference.py: openSeqSLAM's search written in numpy (a loop over
 queries, then velocities and steps, each step vectorised over the database), the oracle the
-tests check ``vpr_jax.sequence`` against; this script checks the two agree here too.
+tests check ``vpr_jax.evaluation.sequence`` against; this script checks the two agree here too.
 
 Sizes, on the built-in route's raw pixels (cosine similarity of 2,048-pixel descriptors):
   seed test set   3,569 fall queries x 3,569 summer database frames
@@ -30,7 +30,7 @@ from peers import native_blas_process
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests/ holds the peer
 from tests.sequence_reference import sequence_top_k_numpy  # noqa: E402
 from vpr_jax.data.synthetic import synthetic_route  # noqa: E402
-from vpr_jax.sequence import sequence_top_k, sequence_top_k_cosine  # noqa: E402
+from vpr_jax.evaluation.sequence import sequence_top_k, sequence_top_k_cosine  # noqa: E402
 
 N_TEST, FULL_ROUTE = 3569, 35768
 

@@ -29,7 +29,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from vpr_jax.config import SWEEPS_REMOVED_PCS  # noqa: E402
-from vpr_jax.results import read_results, selected_rows  # noqa: E402
+from vpr_jax.outputs.results import read_results, selected_rows  # noqa: E402
 
 ORDER = ("raw", "pca", "diff_pca", "ica", "lda", "fae", "cae")
 

@@ -45,8 +45,8 @@ from peers import FORCING, ours_report, run_peer
 
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import ica, pca
-from vpr_jax.matching import top_k_matches
-from vpr_jax.results import read_results
+from vpr_jax.evaluation.matching import top_k_matches
+from vpr_jax.outputs.results import read_results
 
 REPO = Path(__file__).resolve().parent.parent
 SEED_TABLE_4 = ("1:12:05", "1:57:32", "3:43:46", "7:56:09")  # baseline, ICA, FAE, CAE

@@ -17,97 +17,21 @@ from pathlib import Path
 import numpy as np
 from jax.sharding import Mesh
 
-from vpr_jax.bootstrap import cell_intervals
 from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig
-from vpr_jax.data import Benchmark, Route
-from vpr_jax.data.splits import Split
-from vpr_jax.ground_truth import Tolerance
-from vpr_jax.matching import top_k_matches
-from vpr_jax.methods import Descriptors, PairData, model_name
-from vpr_jax.metrics import Evaluation, evaluate_matches
+from vpr_jax.data.ground_truth import Tolerance
+from vpr_jax.data.pair import PairData
+from vpr_jax.evaluation.bootstrap import cell_intervals
+from vpr_jax.evaluation.matching import top_k_matches
+from vpr_jax.evaluation.metrics import Evaluation, evaluate_matches
+from vpr_jax.evaluation.sequence import sequence_top_k_cosine, velocities
+from vpr_jax.methods import Descriptors, model_name
+from vpr_jax.outputs.results import ResultRow, append_results
+from vpr_jax.outputs.tb import match_examples, write_cell_run
 from vpr_jax.progress import Log
-from vpr_jax.results import ResultRow, append_results
-from vpr_jax.sequence import sequence_top_k_cosine, velocities
-from vpr_jax.tb import match_examples, write_cell_run
 
 TOP_K = 10  # matches kept per query: enough for recall@10
 INCOMPLETE = ".incomplete"  # TensorBoard runs being written; moved into place when whole
 TopK = tuple[np.ndarray, np.ndarray]  # (scores, database indices), each (n_queries, K)
-
-
-def pair_data(
-    route: Route, split: Split, db: str, query: str, database: str, tolerance: int
-) -> PairData:
-    """Images of one pair of an aligned route, ground truth ``|i - j| <= tolerance`` on
-    frame ids; ``database="all"`` matches the queries against every frame of the database
-    season (training places included), not only its test places."""
-    images = route.images
-    everything = database == "all"  # the season's own array: no copy of the whole route
-    db_ids = route.frame_ids if everything else route.frame_ids[split.test]
-    query_ids, val_ids = route.frame_ids[split.test], route.frame_ids[split.val]
-    return PairData(
-        db_season=db,
-        query_season=query,
-        train=np.concatenate([images[db][split.train], images[query][split.train]]),
-        db=images[db] if everything else images[db][split.test],
-        query=images[query][split.test],
-        db_ids=db_ids,
-        query_ids=query_ids,
-        truth=Tolerance.of(query_ids, db_ids, tolerance),
-        val_db=images[db][split.val],
-        val_query=images[query][split.val],
-        val_db_ids=val_ids,
-        val_query_ids=val_ids,
-        val_truth=Tolerance.of(val_ids, val_ids, tolerance),
-    )
-
-
-def benchmark_pair(
-    bench: Benchmark, route: Route | None, split: Split | None, cfg: SweepConfig
-) -> PairData:
-    """A benchmark's one pair. Its queries are scored against its database with its own
-    ground truth. The encoders fit on the training places of ``route`` (both of
-    ``data.seasons``, aligned; they validate on its validation places), or, without one, on
-    the database images, validating on the last ``split.val_fraction`` of the queries
-    (held out from the test: nothing is chosen on test queries)."""
-    db, query = bench.pair
-    if route is not None:
-        a, b = route.seasons
-        val_ids = route.frame_ids[split.val]
-        return PairData(
-            db_season=db,
-            query_season=query,
-            train=np.concatenate([route.images[a][split.train], route.images[b][split.train]]),
-            db=bench.db,
-            query=bench.query,
-            db_ids=bench.db_ids,
-            query_ids=bench.query_ids,
-            truth=bench.truth,
-            val_db=route.images[a][split.val],
-            val_query=route.images[b][split.val],
-            val_db_ids=val_ids,
-            val_query_ids=val_ids,
-            val_truth=Tolerance.of(val_ids, val_ids, cfg.tolerance),
-        )
-    n_query = len(bench.query)
-    n_val = min(max(1, round(cfg.split.val_fraction * n_query)), n_query - 1)
-    test, val = np.arange(n_query - n_val), np.arange(n_query - n_val, n_query)
-    return PairData(
-        db_season=db,
-        query_season=query,
-        train=bench.db,
-        db=bench.db,
-        query=bench.query[test],
-        db_ids=bench.db_ids,
-        query_ids=bench.query_ids[test],
-        truth=bench.truth.take(test),
-        val_db=bench.db,
-        val_query=bench.query[val],
-        val_db_ids=bench.db_ids,
-        val_query_ids=bench.query_ids[val],
-        val_truth=bench.truth.take(val),
-        aligned_training=False,
-    )
 
 
 def _part(desc: Descriptors, pair: PairData, part: str):
@@ -131,7 +55,7 @@ def match(
     validation database.
 
     ds = 1: plain cosine, one blockwise pass for all counts (suffix starts), split over the
-    mesh. ds > 1: sequence matching (``vpr_jax.sequence``) of ds frames on each count's
+    mesh. ds > 1: sequence matching (``vpr_jax.evaluation.sequence``) of ds frames on each count's
     descriptor suffix, on one device.
     """
     start_of = dict(zip(desc.removed_pcs, desc.starts, strict=True))
@@ -194,6 +118,7 @@ def _write_run(
             "timing/encode_ms_per_image": desc.encode_ms_per_image,
             "fit/n_iter": desc.n_iter,
             "fit/converged": int(desc.converged),
+            "fit/stopped_early": int(desc.stopped_early),
         },
         hparams={
             "season_pair": pair.name,
@@ -279,6 +204,7 @@ def save_cell(
         encode_ms_per_image=desc.encode_ms_per_image,
         n_iter=desc.n_iter,
         converged=int(desc.converged),
+        stopped_early=int(desc.stopped_early),
         seed=cfg.seed,
         run=name,
     )

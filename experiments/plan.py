@@ -14,10 +14,10 @@ from typing import NamedTuple
 from vpr_jax.config import BENCHMARK_SOURCES, SWEEPS_REMOVED_PCS, SequenceConfig, SweepConfig
 from vpr_jax.data import SEASON_ORDER, Benchmark, Route, load_data, load_train_route
 from vpr_jax.data.benchmark import BENCHMARK_PAIRS
+from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
-from vpr_jax.logdir import prepare_logdir
-from vpr_jax.preprocess import preprocess_benchmark, preprocess_route
+from vpr_jax.outputs.logdir import prepare_logdir
 from vpr_jax.progress import Log
 
 
@@ -151,7 +151,7 @@ def make_plan(cfg: SweepConfig, log: Log) -> Plan:
         route = preprocess_route(data, *prep)
         split = make_split(route.frame_ids, cfg.split)
         check_components(cfg, 2 * len(split.train), int(route.images[pairs[0][0]][0].size), log)
-        return Plan(cfg, logdir, pairs, route, split)
+        return Plan(cfg=cfg, logdir=logdir, pairs=pairs, route=route, split=split)
     bench = preprocess_benchmark(data, *prep)
     if len(bench.query) < 2:
         raise UserError(
@@ -173,4 +173,4 @@ def make_plan(cfg: SweepConfig, log: Log) -> Plan:
         split = make_split(route.frame_ids, cfg.split)
         n_train = 2 * len(split.train)
     check_components(cfg, n_train, int(bench.db[0].size), log)
-    return Plan(cfg, logdir, pairs, route, split, bench)
+    return Plan(cfg=cfg, logdir=logdir, pairs=pairs, route=route, split=split, benchmark=bench)

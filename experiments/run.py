@@ -8,60 +8,43 @@ can without JAX first and imports this module only then.
 
 from __future__ import annotations
 
-import functools
-import os
 import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import jax
-import numpy as np
 from jax.sharding import Mesh
-from omegaconf import OmegaConf
 
-from experiments.cells import (
-    INCOMPLETE,
-    benchmark_pair,
-    block_length,
-    log_cell,
-    match,
-    pair_data,
-    save_cell,
-)
+from experiments.cells import INCOMPLETE, log_cell, match, save_cell
 from experiments.plan import Plan
-from vpr_jax.bootstrap import Difference, paired_recall_difference
-from vpr_jax.config import SWEEPS_REMOVED_PCS, MeshConfig, SweepConfig, to_dict
+from experiments.report import SUMMARY, write_report
+from vpr_jax.config import SWEEPS_REMOVED_PCS, MeshConfig, SweepConfig
+from vpr_jax.data.pair import PairData, benchmark_pair, pair_data
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import check_batch_splits
 from vpr_jax.errors import UserError
-from vpr_jax.logdir import identity, lock_logdir
+from vpr_jax.evaluation.metrics import SCALAR_NAMES
+from vpr_jax.files import atomic_write_text
 from vpr_jax.methods import (
     AUTOENCODERS,
     METHODS,
     USES_PCA_FIT,
     Descriptors,
     MethodContext,
-    PairData,
     fit_pair_pca,
-    model_name,
 )
-from vpr_jax.metrics import SCALAR_NAMES
-from vpr_jax.plots import correct_matches_figure, pr_curves_figure, recall_vs_ds_figure
-from vpr_jax.progress import Bar, Log, RunLog
-from vpr_jax.results import (
+from vpr_jax.outputs.logdir import config_yaml, identity, lock_logdir
+from vpr_jax.outputs.results import (
     TIMING_NAMES,
     CellKey,
     ResultRow,
-    atomic_write_text,
-    baseline_of,
     cell_key,
-    markdown_table,
     read_results,
-    selected_rows,
 )
+from vpr_jax.outputs.tb import TrainingRun, write_experiment_config
+from vpr_jax.progress import Bar, Log, RunLog
 from vpr_jax.sharding import make_mesh, mesh_size
-from vpr_jax.tb import SummaryCell, TrainingRun, write_experiment_config, write_pair_summary
 
 
 def objectives_of(method: str, cfg: SweepConfig) -> tuple[str, ...]:
@@ -112,102 +95,6 @@ def method_context(
     )
 
 
-def write_summaries(logdir: Path, cfg: SweepConfig) -> None:
-    """results.md and the figures, from every row of results.csv (this run's and earlier)."""
-    rows = read_results(logdir / "results.csv")
-    if not rows:
-        return
-    curve = _curve_reader(logdir)
-    atomic_write_text(
-        logdir / "results.md", markdown_table(rows, differences_to_pca(rows, curve, cfg))
-    )
-    figures = logdir / "figures"
-    figures.mkdir(exist_ok=True)
-    write_tb_summaries(logdir, rows, curve, cfg)
-    pr_curves_figure(
-        rows,
-        lambda row: (curve(row.run)["precision"], curve(row.run)["recall"]),
-        figures / "pr_curves.png",
-    )
-    correct_matches_figure(rows, figures / "correct_matches.png")
-    if len({r.ds for r in rows}) > 1:
-        recall_vs_ds_figure(rows, figures / "recall_vs_ds.png")
-
-
-SUMMARY = "summary"  # logdir/summary/<pair>: each pair's selected cells in one run
-PER_QUERY = ("best_scores", "best_correct", "has_match")  # in curve.npz since 2026-12
-
-
-def _curve_reader(logdir: Path):
-    """``run -> curve.npz`` as a dict of arrays, each file read once: results.md's paired
-    differences, the summary runs and the figures all read the selected rows' curves."""
-
-    @functools.cache
-    def curve(run: str) -> dict[str, np.ndarray]:
-        with np.load(logdir / run / "curve.npz") as z:
-            return {name: z[name] for name in z.files}
-
-    return curve
-
-
-def write_tb_summaries(logdir: Path, rows: list[ResultRow], curve, cfg: SweepConfig) -> None:
-    """Per season pair, one TensorBoard run holding every method's selected cell
-    (``vpr_jax.tb.write_pair_summary``), rewritten whole (aside, then moved into place) from
-    the table and the cells' curve.npz. ``tensorboard --logdir LOGDIR/summary`` opens on
-    them (``curve``: ``_curve_reader``); rows whose runs predate the per-query record are
-    left out."""
-    by_pair: dict[str, list[SummaryCell]] = {}
-    for row in selected_rows(rows):
-        if "best_correct" not in curve(row.run):
-            continue
-        per_query = (curve(row.run)[name] for name in PER_QUERY)
-        label = model_name(row.method, row.objective)
-        label += f"_ds{row.ds:02d}" if row.ds != 1 else ""
-        setting = f"k={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else ""
-        scalars = {name: getattr(row, name) for name in SCALAR_NAMES}
-        by_pair.setdefault(row.season_pair, []).append(
-            SummaryCell(label, setting, scalars, *per_query)
-        )
-    for pair, cells in by_pair.items():
-        staging = logdir / INCOMPLETE / SUMMARY / pair
-        shutil.rmtree(staging, ignore_errors=True)
-        staging.mkdir(parents=True)
-        write_pair_summary(
-            staging, cells, pr_convention=cfg.pr_convention, n_thresholds=cfg.tb.pr_thresholds
-        )
-        final = logdir / SUMMARY / pair
-        shutil.rmtree(final, ignore_errors=True)
-        final.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(staging, final)
-
-
-def differences_to_pca(rows: list[ResultRow], curve, cfg: SweepConfig) -> dict[str, Difference]:
-    """Per selected row (by run), recall@1 minus its pair's selected PCA row's, paired on
-    the same queries (``vpr_jax.bootstrap``; ``curve``: ``_curve_reader``); rows whose runs
-    predate the per-query record in curve.npz are left out."""
-    selected = selected_rows(rows)
-
-    def correct(run: str):
-        return curve(run).get("best_correct")
-
-    out = {}
-    for row in selected:
-        base = baseline_of(row, selected)
-        if row.method == "pca" or base is None:
-            continue
-        mine, theirs = correct(row.run), correct(base.run)
-        if mine is None or theirs is None or mine.shape != theirs.shape:
-            continue
-        out[row.run] = paired_recall_difference(
-            mine,
-            theirs,
-            block_length=block_length(cfg, row.ds),
-            resamples=cfg.bootstrap.resamples,
-            seed=cfg.seed,
-        )
-    return out
-
-
 def run_cells(plan: Plan, log: RunLog) -> Path:
     """Start the devices, then fit, encode, match and evaluate every cell still to do,
     writing each one's run and results.csv row as it ends."""
@@ -243,7 +130,7 @@ def _cells_to_do(plan: Plan, log: Log) -> tuple[list[CellKey], set[CellKey]]:
     cfg = plan.cfg
     done = {cell_key(r) for r in read_results(plan.logdir / "results.csv")}
     cells = [
-        (f"{a}-{b}", m, o, k, ds)
+        CellKey(season_pair=f"{a}-{b}", method=m, objective=o, removed_pcs=k, ds=ds)
         for a, b in plan.pairs
         for m in cfg.methods
         for o in objectives_of(m, cfg)
@@ -259,7 +146,7 @@ def _cells_to_do(plan: Plan, log: Log) -> tuple[list[CellKey], set[CellKey]]:
 def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
     cfg, logdir = plan.cfg, plan.logdir
     # Validation is over: from here on the logdir is written.
-    atomic_write_text(out / "config.yaml", OmegaConf.to_yaml(to_dict(cfg)))
+    atomic_write_text(out / "config.yaml", config_yaml(cfg))
     log.open(out / "sweep.log")
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
     log(
@@ -272,9 +159,9 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
         {
             "season_pair": [f"{a}-{b}" for a, b in plan.pairs],
             "method": list(cfg.methods),
-            "objective": [c[2] for c in cells],
-            "removed_pcs": [float(c[3]) for c in cells],
-            "ds": [float(c[4]) for c in cells],
+            "objective": [c.objective for c in cells],
+            "removed_pcs": [float(c.removed_pcs) for c in cells],
+            "ds": [float(c.ds) for c in cells],
         },
         [f"metrics/{k}" for k in SCALAR_NAMES] + [f"timing/{k}" for k in TIMING_NAMES],
     )
@@ -286,7 +173,11 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
             for method in cfg.methods:
                 # Objectives and counts with any cell still to do: their descriptors are
                 # computed again.
-                left = [(o, k) for (p, m, o, k, _) in todo if p == pair and m == method]
+                left = [
+                    (c.objective, c.removed_pcs)
+                    for c in todo
+                    if (c.season_pair, c.method) == (pair, method)
+                ]
                 if not left:
                     continue
                 if data is None:  # built on first use
@@ -304,7 +195,7 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                         finished += 1
                         bar.advance()
                         log_cell(log, f"[{finished}/{len(cells)}]", row, warning)
-    write_summaries(out, cfg)
+    write_report(out, cfg)
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)  # empty once every cell moved out
     log(
         f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; compare the methods "
@@ -350,7 +241,14 @@ def _save_descriptors(
 
     for k in desc.removed_pcs:
         for ds in cfg.sequence_lengths:
-            if (data.name, desc.method, desc.objective, k, ds) not in todo:
+            cell = CellKey(
+                season_pair=data.name,
+                method=desc.method,
+                objective=desc.objective,
+                removed_pcs=k,
+                ds=ds,
+            )
+            if cell not in todo:
                 continue
             row = save_cell(
                 out, cfg, data, desc, k, ds, matches(k, ds, "test"), matches(k, ds, "val")

@@ -23,8 +23,8 @@ from pathlib import Path
 from experiments.plan import make_plan
 from vpr_jax.config import SweepConfig, parse_config
 from vpr_jax.errors import UserError
+from vpr_jax.outputs.results import read_results
 from vpr_jax.progress import RunLog
-from vpr_jax.results import read_results
 
 
 def run_sweep(cfg: SweepConfig) -> Path:

@@ -1,10 +1,17 @@
+import contextlib
+import fcntl
+import json
 import os
+import shlex
+import shutil
+import signal
 import subprocess
 import sys
-from collections.abc import Iterable, Mapping
+import tempfile
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -27,9 +34,98 @@ SMALL = [
 ]
 
 
-def run_cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+# Every subprocess a test starts ends within this (the per-test limit in pyproject.toml is
+# longer, so a hung subprocess fails its test with its own message and output, not the
+# runner's stack dump).
+PROCESS_TIMEOUT_S = 240
+
+
+def env_with_repo(**extra: str) -> dict:
+    """The environment a child process of a test runs in: this one, the repository on
+    PYTHONPATH, and ``extra``."""
+    return {**os.environ, "PYTHONPATH": str(REPO), **extra}
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    """SIGKILL the child's whole process group (it leads one: ``start_new_session``)."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGKILL)
+
+
+def _tail(text: str | None, n: int = 3000) -> str:
+    return (text or "")[-n:]
+
+
+def run_process(
+    cmd: list[str], *, timeout: float = PROCESS_TIMEOUT_S, env: dict | None = None, **kwargs
+) -> subprocess.CompletedProcess:
+    """``subprocess.run(cmd, capture_output=True, text=True)`` in the repository, in a new
+    process group that is killed whole when ``timeout`` seconds pass; the test then fails
+    with one message naming the command and the end of its output."""
+    with subprocess.Popen(
+        cmd,
+        cwd=kwargs.pop("cwd", REPO),
+        env=env_with_repo() if env is None else env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        **kwargs,
+    ) as proc:
+        expired = False
+        try:
+            out, err = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            expired = True
+            _kill_group(proc)
+            out, err = proc.communicate()
+        except BaseException:  # the test's own limit, Ctrl-C: leave nothing running
+            _kill_group(proc)
+            raise
+    if expired:
+        pytest.fail(
+            f"{shlex.join(map(str, cmd))[:300]} did not finish within {timeout:g} s; its "
+            f"process group was killed.\nstdout: ...{_tail(out)}\nstderr: ...{_tail(err)}",
+            pytrace=False,
+        )
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
+@contextlib.contextmanager
+def started(
+    cmd: list[str], *, timeout: float = PROCESS_TIMEOUT_S, **kwargs
+) -> Iterator[subprocess.Popen]:
+    """A child process the test talks to while it runs (``Popen`` arguments; text mode,
+    the repository's environment, its own process group). Whatever happens in the block,
+    the group is killed at its end and the child reaped; a watchdog kills it after
+    ``timeout`` s (its pipes then reach their end, so no read blocks for ever) and the test
+    fails with a message saying so."""
+    kwargs.setdefault("env", env_with_repo())
+    proc = subprocess.Popen(cmd, cwd=REPO, text=True, start_new_session=True, **kwargs)
+    expired = threading.Event()
+    watchdog = threading.Timer(timeout, lambda: (expired.set(), _kill_group(proc)))
+    watchdog.daemon = True
+    watchdog.start()
+    try:
+        yield proc
+    finally:
+        watchdog.cancel()
+        _kill_group(proc)
+        proc.wait()
+        for stream in (proc.stdin, proc.stdout, proc.stderr):
+            if stream is not None:
+                stream.close()
+        if expired.is_set():
+            pytest.fail(
+                f"{shlex.join(map(str, cmd))[:300]} was still running after {timeout:g} s; "
+                "its process group was killed",
+                pytrace=False,
+            )
+
+
+def run_cli(*args: str, env: dict | None = None, timeout: float = PROCESS_TIMEOUT_S):
     """``python -m experiments.sweep ARGS`` in a fresh interpreter, as a user runs it, with
-    ``env`` added to the environment.
+    ``env`` added to the environment (``run_process``: killed after ``timeout`` s).
 
     Unless the test names one, models are checkpointed next to the logdir (in the test's
     own tmp folder), not in the repository's checkpoints/.
@@ -37,23 +133,128 @@ def run_cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
     logdirs = [a.split("=", 1)[1] for a in args if a.startswith("logdir=")]
     if logdirs and not any(a.startswith("train.checkpoint_dir=") for a in args):
         args = (*args, f"train.checkpoint_dir={Path(logdirs[-1]).parent / 'checkpoints'}")
-    env = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
-    return subprocess.run(
+    return run_process(
         [sys.executable, "-m", "experiments.sweep", *args],
-        cwd=REPO,
-        env=env,
-        capture_output=True,
-        text=True,
+        env=env_with_repo(**(env or {})),
+        timeout=timeout,
     )
+
+
+def assert_one_line_error(
+    proc: subprocess.CompletedProcess, *words: str, returncode: int = 2
+) -> str:
+    """What the suite answers bad input (exit code 2) or a fault it cannot work around (1)
+    with: that exit code, one line on stderr that starts with ``error: `` and holds every
+    one of ``words``, no traceback anywhere. Returns the line."""
+    assert proc.returncode == returncode, (proc.returncode, _tail(proc.stdout), _tail(proc.stderr))
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    for word in words:
+        assert word in lines[0], lines[0]
+    return lines[0]
+
+
+XLA_CACHE = pytest.StashKey[str]()
+
+
+def pytest_configure(config):
+    """The environment of every test process and every process it starts, set once by the
+    first process (pytest-xdist's workers inherit it):
+
+    - one thread each for XLA's and numpy's linear algebra: the suite runs as many test
+      processes as there are cores, each starting sweeps of its own, and thread pools
+      sized for the whole machine then spin against each other (the suite took 4 min 40 s
+      on 2 cores with them, 4 min 15 s without);
+    - one cache of XLA's compiled programs for the session: the suite's many small sweeps
+      compile the same programs, and reading them back halves each sweep's time. The
+      folder is deleted when the session ends. JAX writes an entry without a lock; an entry
+      read while being written fails to decompress and JAX compiles the program again (the
+      warnings of that are silenced, so that they do not break a test that reads stderr).
+    """
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    folder = tempfile.mkdtemp(prefix="vpr_jax_tests_xla_cache_")
+    config.stash[XLA_CACHE] = folder
+
+    def extended(name: str, *items: str, sep: str) -> str:
+        return sep.join(filter(None, [os.environ.get(name), *items]))
+
+    cache_warnings = [
+        f"ignore:Error {verb} persistent compilation cache entry" for verb in ("reading", "writing")
+    ]
+    os.environ.update(
+        XLA_FLAGS=extended("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false", sep=" "),
+        OPENBLAS_NUM_THREADS="1",
+        OMP_NUM_THREADS="1",
+        JAX_COMPILATION_CACHE_DIR=folder,
+        JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+        JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0",
+        PYTHONWARNINGS=extended("PYTHONWARNINGS", *cache_warnings, sep=","),
+    )
+
+
+def pytest_unconfigure(config):
+    if XLA_CACHE in config.stash:
+        shutil.rmtree(config.stash[XLA_CACHE], ignore_errors=True)
+
+
+def private_xla_cache(folder: Path) -> dict:
+    """The environment for a sweep the test kills or limits: a copy of the session's XLA
+    cache in ``folder`` (an entry it cuts short then harms only that copy)."""
+    shared = os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if not shared:
+        return {}
+    copy = shutil.copytree(shared, Path(folder) / "xla_cache", dirs_exist_ok=True)
+    return {"JAX_COMPILATION_CACHE_DIR": str(copy)}
+
+
+@contextlib.contextmanager
+def _shared_by_workers(tmp_path_factory, name: str) -> Iterator[tuple[Path, bool]]:
+    """``(folder, first)``: a folder every pytest-xdist worker of this session sees (the
+    folder of a plain run otherwise), held under an exclusive file lock for the block;
+    ``first`` until a block over it has ended without an error."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # every worker's basetemp lies in the session's one folder
+    folder, done = base / name, base / f"{name}.done"
+    with open(base / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        yield folder, not done.exists()
+        done.touch()
+
+
+def shared_folder(tmp_path_factory, name: str, make: Callable[[Path], None]) -> Path:
+    """A folder ``make(folder)`` fills once per session, whichever worker asks first; the
+    others wait for it and then read it (read-only for every test)."""
+    with _shared_by_workers(tmp_path_factory, name) as (folder, first):
+        if first:
+            shutil.rmtree(folder, ignore_errors=True)  # what a failed attempt left
+            folder.mkdir(parents=True)
+            make(folder)
+    return folder
+
+
+def shared_sweep(tmp_path_factory, name: str, *args: str):
+    """``(logdir, the finished process)`` of ``run_cli(*args)`` run once per session into a
+    ``shared_folder`` (read-only for every test)."""
+
+    def sweep(folder: Path) -> None:
+        proc = run_cli(*args, f"logdir={folder / 'runs'}")
+        assert proc.returncode == 0, proc.stderr
+        record = [proc.args, proc.returncode, proc.stdout, proc.stderr]
+        (folder / "process.json").write_text(json.dumps(record))
+
+    folder = shared_folder(tmp_path_factory, name, sweep)
+    record = json.loads((folder / "process.json").read_text())
+    return folder / "runs", subprocess.CompletedProcess(*record)
 
 
 @pytest.fixture(scope="session")
 def small_sweep(tmp_path_factory):
-    """One finished small sweep shared by the end-to-end tests (read-only for them)."""
-    logdir = tmp_path_factory.mktemp("sweep") / "runs"
-    proc = run_cli(*SMALL, f"logdir={logdir}")
-    assert proc.returncode == 0, proc.stderr
-    return logdir, proc
+    """One finished small sweep shared by the end-to-end tests of every worker (read-only
+    for them): ``(logdir, the finished process)``."""
+    return shared_sweep(tmp_path_factory, "small_sweep", *SMALL)
 
 
 def numpy_cosine(q, d):
@@ -61,21 +262,6 @@ def numpy_cosine(q, d):
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     return q @ d.T
-
-
-def write_release(
-    root: Path, frames: Mapping[str, Iterable[np.ndarray]], ids: Iterable[int] | None = None
-) -> Path:
-    """Nordland's 64x32 release layout, ``ROOT/<season>/images-%05d.png``, from each season's
-    uint8 images, numbered ``ids`` (default 1, 2, ...). Returns ``root``."""
-    for season, images in frames.items():
-        folder = Path(root) / season
-        folder.mkdir(parents=True, exist_ok=True)
-        images = list(images)
-        numbers = range(1, len(images) + 1) if ids is None else ids
-        for i, img in zip(numbers, images, strict=True):
-            assert cv2.imwrite(str(folder / f"images-{i:05d}.png"), img)
-    return Path(root)
 
 
 class LogLines(list):

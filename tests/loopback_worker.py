@@ -16,7 +16,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vpr_jax import sharding  # noqa: E402
-from vpr_jax.matching import top_k_matches  # noqa: E402
+from vpr_jax.evaluation.matching import top_k_matches  # noqa: E402
 
 
 def main() -> None:

@@ -1,6 +1,7 @@
 """A straightforward numpy sequence search, written the way openSeqSLAM writes it (a loop
-over queries, then over velocities and steps), from the definition in ``vpr_jax.sequence``'s
-docstring: the oracle of tests/test_sequence.py and the peer of benchmarks/bench_sequence.py.
+over queries, then over velocities and steps), from the definition in
+``vpr_jax.evaluation.sequence``'s docstring: the oracle of tests/test_sequence.py and the
+peer of benchmarks/bench_sequence.py.
 Shares only the definition of the trajectories' steps and integer offsets with the code
 under test.
 """
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vpr_jax.sequence import (
+from vpr_jax.evaluation.sequence import (
     DEFAULT_VELOCITIES,
     stretch_ids,
     trajectory_offsets,

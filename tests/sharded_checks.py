@@ -20,7 +20,7 @@ from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import pca
 from vpr_jax.encoders.train import fit_autoencoder, make_optimizer, make_train_step
-from vpr_jax.matching import top_k_matches
+from vpr_jax.evaluation.matching import top_k_matches
 
 
 def max_diff(a, b) -> float:
@@ -60,7 +60,10 @@ def main() -> None:
     images = rng.random((200, 32, 64), np.float32)
     settings = TrainConfig(epochs=2, batch_size=16, optimizer="sgd", learning_rate=0.5)
     batch_sharding = NamedSharding(mesh, P(sharding.AXIS))
-    for spec in (ae.FAESpec(hidden=32), ae.CAESpec((32, 32), (3, 3), 4)):
+    for spec in (
+        ae.FAESpec(hidden=32),
+        ae.CAESpec(channels=(32, 32), kernel_sizes=(3, 3), code_channels=4),
+    ):
         name = type(spec).__name__
         graphdef, params = ae.build(spec, jax.random.key(0), (32, 64))
 

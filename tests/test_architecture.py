@@ -1,10 +1,11 @@
-"""The code's shape: no module of vpr_jax/ or experiments/ imports itself back in a cycle."""
+"""The code's shape: no import cycle, stages that import only earlier stages, short
+functions, records built by name, one formatter."""
 
 import ast
 import subprocess
 import sys
 
-from tests.conftest import REPO
+from tests.conftest import REPO, run_process
 
 
 def _modules() -> dict[str, ast.Module]:
@@ -58,18 +59,52 @@ def test_no_import_cycles():
     assert not cycles, " -> ".join(cycles[0])
 
 
-def test_methods_make_descriptors_and_never_match():
+# The stages of the data flow, in order. A module of a stage imports its own stage, earlier
+# stages and the foundation (the modules at vpr_jax's root, which import no stage); the
+# runner (experiments/) and the package's front door (vpr_jax/__init__.py) may import any.
+STAGES = ("data", "encoders", "methods", "evaluation", "outputs")
+
+
+def _stage(module: str) -> int | None:
+    """The stage index of a vpr_jax module, None for the foundation and the runner."""
+    parts = module.split(".")
+    if parts[0] == "vpr_jax" and len(parts) > 1 and parts[1] in STAGES:
+        return STAGES.index(parts[1])
+    return None
+
+
+def test_no_stage_imports_a_later_stage_and_the_foundation_imports_none():
     graph = import_graph()
-    assert not {"vpr_jax.sequence", "experiments.cells"} & graph["vpr_jax.methods"]
-    tree = _modules()["vpr_jax.methods"]
-    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
-    assert not {"top_k_matches", "sequence_top_k_cosine", "evaluate_top_k"} & names
+    assert {"data", "encoders", "methods", "evaluation", "outputs"} == {
+        m.split(".")[1] for m in graph if _stage(m) is not None
+    }  # every stage is a folder the graph sees
+    backwards = [
+        f"{m} -> {dep}"
+        for m, deps in graph.items()
+        if _stage(m) is not None
+        for dep in deps
+        if _stage(dep) is not None and _stage(dep) > _stage(m)
+    ]
+    assert not backwards, f"a stage imports a later one: {backwards}"
+    foundation = [m for m in graph if m.startswith("vpr_jax.") and _stage(m) is None]
+    assert {"vpr_jax.config", "vpr_jax.sharding", "vpr_jax.files"} <= set(foundation)
+    reaching = [f"{m} -> {dep}" for m in foundation for dep in graph[m] if _stage(dep) is not None]
+    assert not reaching, f"the foundation imports a stage: {reaching}"
+
+
+def test_methods_make_descriptors_and_never_match():
+    modules = _modules()
+    graph = import_graph()
+    package = [m for m in modules if m == "vpr_jax.methods" or m.startswith("vpr_jax.methods.")]
+    assert len(package) > 1
+    for module in package:
+        assert not {"experiments.cells"} & graph[module]
+        names = {n.id for n in ast.walk(modules[module]) if isinstance(n, ast.Name)}
+        assert not {"top_k_matches", "sequence_top_k_cosine", "evaluate_top_k"} & names, module
 
 
 def _ruff(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "ruff", *args], cwd=REPO, capture_output=True, text=True, timeout=60
-    )
+    return run_process([sys.executable, "-m", "ruff", *args], timeout=60)
 
 
 def test_ruff_owns_the_layout_and_the_lint():
@@ -78,3 +113,56 @@ def test_ruff_owns_the_layout_and_the_lint():
     assert fmt.returncode == 0, f"run `ruff format .`:\n{fmt.stdout}{fmt.stderr}"
     lint = _ruff("check", ".")
     assert lint.returncode == 0, f"run `ruff check .`:\n{lint.stdout}{lint.stderr}"
+
+
+MAX_FUNCTION_LINES = 60
+
+
+def test_no_function_is_longer_than_a_reader_can_hold():
+    """No function of vpr_jax/ or experiments/ over 60 lines (its ``def`` to its last line;
+    a nested function counts on its own and inside its parent)."""
+    long = [
+        f"{name}:{node.lineno} {node.name} ({node.end_lineno - node.lineno + 1} lines)"
+        for name, tree in _modules().items()
+        for node in ast.walk(tree)
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+        and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
+    ]
+    assert not long, f"split into named steps: {long}"
+
+
+def _records(trees) -> dict[str, list[str]]:
+    """NamedTuple and dataclass names -> their fields, of every module in ``trees``."""
+    out = {}
+    for tree in trees:
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.ClassDef):
+                continue
+            kinds = [ast.unparse(b) for b in node.bases + node.decorator_list]
+            if any("NamedTuple" in k or "dataclass" in k for k in kinds):
+                out[node.name] = [
+                    s.target.id
+                    for s in node.body
+                    if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)
+                ]
+    return out
+
+
+def test_records_of_more_than_three_fields_are_built_by_name():
+    """A record (NamedTuple, dataclass) of more than three fields is constructed with
+    keywords wherever it is built, tests and benchmarks included (``_make`` of an iterable
+    of every field stays allowed)."""
+    paths = [*REPO.glob("vpr_jax/**/*.py"), *REPO.glob("experiments/**/*.py")]
+    paths += [*REPO.glob("benchmarks/*.py"), *REPO.glob("tests/*.py")]
+    trees = {p.relative_to(REPO): ast.parse(p.read_text()) for p in paths}
+    wide = {name for name, fields in _records(trees.values()).items() if len(fields) > 3}
+    assert {"CellKey", "TrainState", "TrainResult", "Descriptors"} <= wide  # the checker sees them
+    positional = [
+        f"{path}:{node.lineno} {ast.unparse(node.func)}"
+        for path, tree in trees.items()
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Call)
+        and ast.unparse(node.func).split(".")[-1] in wide
+        and node.args
+    ]
+    assert not positional, f"build these with keywords: {positional}"

@@ -19,7 +19,7 @@ def _images(n=6, seed=0):
     [
         (ae.FAESpec(hidden=32), 32),
         (SMALL_CAE, 8 * 16 * 2),
-        (ae.CAESpec((4,), (3,), 3), 16 * 32 * 3),
+        (ae.CAESpec(channels=(4,), kernel_sizes=(3,), code_channels=3), 16 * 32 * 3),
     ],
 )
 def test_shapes_of_codes_and_reconstructions(spec, code):
@@ -58,7 +58,11 @@ def test_fae_code_is_relu_of_the_first_layer_on_centred_pixels(centre):
 
 def test_build_refuses_images_the_levels_cannot_halve():
     with pytest.raises(ValueError, match="divisible by 8"):
-        ae.build(ae.CAESpec((4, 4, 4), (3, 3, 3), 2), jax.random.key(0), image_shape=(36, 64))
+        ae.build(
+            ae.CAESpec(channels=(4, 4, 4), kernel_sizes=(3, 3, 3), code_channels=2),
+            jax.random.key(0),
+            image_shape=(36, 64),
+        )
 
 
 @pytest.mark.parametrize("spec", [ae.FAESpec(hidden=16), SMALL_CAE])

@@ -12,9 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import run_cli, write_release
+from tests.conftest import assert_one_line_error, run_cli
+from tests.inputs import write_release
 from vpr_jax.data.synthetic import synthetic_route
-from vpr_jax.results import read_results
+from vpr_jax.outputs.results import read_results
 
 N_PLACES = 120
 RAW = ["methods=[raw]"]
@@ -85,13 +86,6 @@ def reference_recall(db_paths, query_paths, correct_sets) -> float:
     query /= np.linalg.norm(query, axis=1, keepdims=True)
     best = np.argmax(query @ db.T, axis=1)
     return float(np.mean([b in s for b, s in zip(best, correct_sets, strict=True)]))
-
-
-def _refused(proc, *words):
-    lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2 and len(lines) == 1, (proc.returncode, proc.stderr)
-    assert "Traceback" not in proc.stderr + proc.stdout and lines[0].startswith("error: ")
-    assert all(w in lines[0] for w in words), lines[0]
 
 
 def test_vpr_bench_raw_recall_equals_a_numpy_reference(route, tmp_path):
@@ -309,7 +303,7 @@ def test_bad_vpr_bench_layouts_are_one_line(route, tmp_path, case):
     proc = run_cli(
         f"data.source={source}", f"data.root={root}", *rest, f"logdir={tmp_path / 'runs'}"
     )
-    _refused(proc, *words)
+    assert_one_line_error(proc, *words)
     assert not (tmp_path / "runs").exists()
 
 
@@ -357,7 +351,7 @@ def test_bad_positions_layouts_are_one_line(route, tmp_path, case):
     proc = run_cli(
         "data.source=positions", f"data.root={root}", *args, f"logdir={tmp_path / 'runs'}"
     )
-    _refused(proc, *words)
+    assert_one_line_error(proc, *words)
     assert not (tmp_path / "runs").exists()
 
 

@@ -8,8 +8,8 @@ import pytest
 from sklearn.metrics import auc as auc_of
 from sklearn.metrics import precision_recall_curve
 
-from vpr_jax import bootstrap
-from vpr_jax.metrics import PR_CONVENTIONS, pr_curve
+from vpr_jax.evaluation import bootstrap
+from vpr_jax.evaluation.metrics import PR_CONVENTIONS, pr_curve
 
 
 def _cell(n=120, seed=0):

@@ -2,13 +2,11 @@
 counts or blocks (counted with jax.log_compiles in a fresh process)."""
 
 import json
-import os
-import subprocess
 import sys
 
 import pytest
 
-from tests.conftest import REPO, SMALL
+from tests.conftest import REPO, SMALL, run_process
 
 BASE = [k for k in SMALL if not k.startswith(("removed_pcs", "train.epochs", "fae.epochs"))]
 # Four database blocks and a padded last query block (120 test places per season).
@@ -28,12 +26,8 @@ def compiled(tmp_path_factory):
         _sweep("season_pairs=spring-fall", "removed_pcs=[0,5]", "train.epochs=2"),
         _sweep("season_pairs=spring-fall", "removed_pcs=[0,5,10,20]", "train.epochs=4"),
     ]
-    proc = subprocess.run(
-        [sys.executable, str(REPO / "tests" / "count_compiles.py"), str(logdir), *sweeps],
-        cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
-        capture_output=True,
-        text=True,
+    proc = run_process(
+        [sys.executable, str(REPO / "tests" / "count_compiles.py"), str(logdir), *sweeps]
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])

@@ -1,16 +1,15 @@
 """Typed configs from key=value, and train/test splits that never leak."""
 
-import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from tests.conftest import REPO
+from tests.conftest import run_process
 from vpr_jax.config import SplitConfig, parse_config
 from vpr_jax.data.splits import make_split
 from vpr_jax.errors import UserError
-from vpr_jax.logdir import identity
+from vpr_jax.outputs.logdir import identity
 
 
 def test_defaults_and_overrides():
@@ -32,8 +31,24 @@ def test_defaults_and_overrides():
     assert cfg.split.train_fraction == 0.5
 
 
-def test_paper_preset_file_is_applied():
-    assert parse_config(["preset=paper"]) != parse_config([])
+def test_paper_preset_is_the_seeds_protocol_and_the_command_line_overrides_it():
+    cfg, default = parse_config(["preset=paper"]), parse_config([])
+    # The whole built-in route, every 10th frame: 3,577 images a season.
+    assert (cfg.data.n_frames, cfg.data.frame_step) == (35768, 10)
+    # The seed's 2,500 training and 450 test images per season, a 100-frame gap.
+    assert (cfg.split.n_train, cfg.split.n_test, cfg.split.gap) == (2500, 450, 100)
+    assert cfg.tolerance == 10  # original frames: the neighbouring sampled frame
+    assert cfg.ica.n_components == 256
+    assert cfg.fae.objective == cfg.cae.objective == ("reconstruct",)
+    # What the preset leaves alone stays the default.
+    assert (cfg.seed, cfg.methods, cfg.removed_pcs) == (
+        default.seed,
+        default.methods,
+        default.removed_pcs,
+    )
+    assert cfg.data.source == "synthetic" and cfg.season_pairs == default.season_pairs
+    # A key on the command line wins over the preset's.
+    assert parse_config(["preset=paper", "split.n_test=100"]).split.n_test == 100
 
 
 @pytest.mark.parametrize(
@@ -139,31 +154,38 @@ def test_full_preset_is_the_whole_route_with_olid_sections():
     assert cfg.split.database == "all"
 
 
-def test_a_saved_config_from_before_a_changed_default_keeps_its_old_value(tmp_path):
-    """fae.input_centre arrived with default 0.5, but FAE rows of an older logdir were
-    computed with 0: resuming such a logdir must see a different configuration."""
-    from omegaconf import OmegaConf
+def test_a_saved_config_carries_its_format_and_reads_back_as_its_identity(tmp_path):
+    """config.yaml says its logdir's format; read back, it is the identity it was written
+    from, and one without the format (or of another) is refused."""
+    import yaml
 
-    from vpr_jax.config import to_dict
-    from vpr_jax.logdir import saved_identity
+    from vpr_jax.errors import UserError
+    from vpr_jax.outputs.logdir import FORMAT, config_yaml, saved_identity
 
-    saved = to_dict(parse_config([]))
-    del saved["fae"]["input_centre"]
+    cfg = parse_config(["fae.input_centre=0", "methods=[raw,pca]"])
     path = tmp_path / "config.yaml"
-    path.write_text(OmegaConf.to_yaml(saved))
-    assert saved_identity(path) != identity(parse_config([]))
-    assert saved_identity(path) == identity(parse_config(["fae.input_centre=0"]))
+    path.write_text(config_yaml(cfg))
+    assert yaml.safe_load(path.read_text())["format"] == FORMAT
+    assert saved_identity(path) == identity(cfg) != identity(parse_config([]))
+    written = yaml.safe_load(path.read_text())
+    without_format = {k: v for k, v in written.items() if k != "format"}
+    for saved in (without_format, {**written, "format": FORMAT + 1}):
+        path.write_text(yaml.safe_dump(saved))
+        with pytest.raises(UserError, match="another format.*new logdir=PATH"):
+            saved_identity(path)
 
 
 def test_the_config_names_what_the_library_registers():
     """config.py loads without JAX, so it spells the names of methods, optimizers, ICA
-    contrasts and data sources itself; they must be the library's."""
+    contrasts, PR conventions and data sources itself; they must be the library's."""
     from vpr_jax import config, methods
     from vpr_jax.data import nordland
     from vpr_jax.data.benchmark import BENCHMARK_PAIRS
     from vpr_jax.encoders import ica, train
+    from vpr_jax.evaluation import metrics
 
     assert config.METHODS == tuple(methods.METHODS)
+    assert config.PR_CONVENTIONS == metrics.PR_CONVENTIONS
     assert config.OPTIMIZERS == tuple(train.OPTIMIZERS)
     assert config.ICA_FUNS == ica.FUNS
     assert config.ROUTE_SOURCES == ("synthetic", *nordland.SOURCES)
@@ -172,9 +194,9 @@ def test_the_config_names_what_the_library_registers():
 
 def test_the_config_and_the_logdir_checks_load_without_jax():
     code = (
-        "import sys; import vpr_jax.config, vpr_jax.logdir, experiments.plan; "
+        "import sys; import vpr_jax.config, vpr_jax.outputs.logdir, experiments.plan; "
         "assert not [m for m in sys.modules if m == 'jax' or m.startswith('jax.')], "
         "'jax was imported'"
     )
-    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
+    proc = run_process([sys.executable, "-c", code], timeout=60)
     assert proc.returncode == 0, proc.stderr

@@ -1,13 +1,13 @@
-"""Ground truth as sets (vpr_jax.ground_truth) against dense numpy references, and the
+"""Ground truth as sets (vpr_jax.data.ground_truth) against dense numpy references, and the
 aligned route's tolerance expressed as sets giving exactly today's numbers."""
 
 import numpy as np
 import pytest
 
-from tests.test_metrics import random_case
-from vpr_jax.ground_truth import MatchSets, Tolerance, match_sets, within_radius
-from vpr_jax.metrics import evaluate, evaluate_matches
-from vpr_jax.sequence import sequence_top_k_cosine
+from tests.inputs import random_case
+from vpr_jax.data.ground_truth import MatchSets, Tolerance, match_sets, within_radius
+from vpr_jax.evaluation.metrics import evaluate_matches, evaluate_similarity
+from vpr_jax.evaluation.sequence import sequence_top_k_cosine
 
 
 def dense(truth, n_db):
@@ -40,7 +40,7 @@ def test_tolerance_as_sets_is_the_dense_tolerance_matrix(seed):
 @pytest.mark.parametrize("convention", ["vpr_bench", "has_match", "vpr_tutorial"])
 def test_metrics_from_sets_equal_the_tolerance_path_exactly(seed, convention):
     sim, q, d = random_case(seed, ties=seed % 2 == 1)
-    fast = evaluate(sim, q, d, 3, pr_convention=convention)
+    fast = evaluate_similarity(sim, q, d, 3, pr_convention=convention)
     top = np.argsort(-sim, axis=1, kind="stable")[:, :10]
     scores = np.take_along_axis(sim, top, axis=1)
     sets = evaluate_matches(scores, top, Tolerance.of(q, d, 3).sets(), pr_convention=convention)

@@ -9,10 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import run_cli, write_release
+from tests.conftest import run_cli
+from tests.inputs import write_release
 from vpr_jax.data.synthetic import synthetic_route
-from vpr_jax.metrics import SCALAR_NAMES
-from vpr_jax.results import read_results
+from vpr_jax.evaluation.metrics import SCALAR_NAMES
+from vpr_jax.outputs.results import read_results
 
 SEASONS = ("spring", "summer", "fall")
 METRICS = SCALAR_NAMES

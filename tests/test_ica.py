@@ -246,26 +246,26 @@ def test_encode_is_pure_under_jit_vmap_and_inside_other_jitted_code():
 def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     from experiments.cells import match
     from vpr_jax.config import parse_config
-    from vpr_jax.ground_truth import Tolerance
+    from vpr_jax.data.ground_truth import Tolerance
     from vpr_jax.methods import METHODS, MethodContext, PairData, fit_pair_pca
 
     route = synthetic_route(300, ("summer", "fall"), 0)
     s, f = route.images["summer"], route.images["fall"]
     test_ids, val_ids = route.frame_ids[250:], route.frame_ids[220:240]
     pair = PairData(
-        "summer",
-        "fall",
-        np.concatenate([s[:200], f[:200]]),
-        s[250:],
-        f[250:],
-        test_ids,
-        test_ids,
-        Tolerance.of(test_ids, test_ids, 2),
-        s[220:240],
-        f[220:240],
-        val_ids,
-        val_ids,
-        Tolerance.of(val_ids, val_ids, 2),
+        db_season="summer",
+        query_season="fall",
+        train=np.concatenate([s[:200], f[:200]]),
+        db=s[250:],
+        query=f[250:],
+        db_ids=test_ids,
+        query_ids=test_ids,
+        truth=Tolerance.of(test_ids, test_ids, 2),
+        val_db=s[220:240],
+        val_query=f[220:240],
+        val_db_ids=val_ids,
+        val_query_ids=val_ids,
+        val_truth=Tolerance.of(val_ids, val_ids, 2),
     )
     cfg = parse_config(["ica.n_components=12", "tb.n_basis_images=5"])
     fit = fit_pair_pca(pair, cfg, None)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import numpy_cosine as _numpy_cosine
-from vpr_jax.matching import cosine_similarity, suffix_cosine, top_k_matches
+from vpr_jax.evaluation.matching import cosine_similarity, suffix_cosine, top_k_matches
 
 
 def test_cosine_matches_numpy_and_is_queries_by_database():

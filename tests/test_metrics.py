@@ -1,4 +1,5 @@
-"""vpr_jax.metrics against loop-based reference implementations, hand-computed cases and sklearn.
+"""vpr_jax.evaluation.metrics against loop-based reference implementations, hand-computed
+cases and sklearn.
 
 The references below are deliberately naive: a full (Ndb, Nq) boolean ground-truth matrix as
 VPR_Tutorial builds it, a per-query argmax, and a Python loop over thresholds and queries.
@@ -12,12 +13,13 @@ import numpy as np
 import pytest
 from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
-from vpr_jax.metrics import (
+from tests.inputs import random_case
+from vpr_jax.evaluation.metrics import (
     PR_CONVENTIONS,
     SCALAR_NAMES,
     Evaluation,
     correct_matches,
-    evaluate,
+    evaluate_similarity,
     evaluate_top_k,
     has_true_match,
     pr_counts,
@@ -130,22 +132,6 @@ def ref_evaluate(sim, query_ids, db_ids, tol, convention, ks=(1, 5, 10)):
     }
 
 
-def random_case(seed, nq=40, ndb=60, ties=False, all_match=False):
-    """Frame ids along a route, unsorted db ids, similarity peaked near the true frame."""
-    rng = np.random.default_rng(seed)
-    route = 120
-    db_ids = rng.choice(route, ndb, replace=False)  # unsorted, with gaps
-    if all_match:
-        query_ids = rng.choice(db_ids, nq, replace=False)
-    else:
-        query_ids = rng.choice(route, nq, replace=False)  # some land in gaps
-    dist = np.abs(query_ids[:, None] - db_ids[None, :])
-    sim = np.exp(-dist / 2.0) + rng.normal(0.0, 0.35, size=(nq, ndb))
-    if ties:
-        sim = np.round(sim, 1)
-    return sim, query_ids, db_ids
-
-
 def assert_matches_ref(ev: Evaluation, ref: dict):
     for name in SCALARS:
         assert getattr(ev, name) == pytest.approx(ref[name], abs=1e-12), name
@@ -183,7 +169,9 @@ HAND_ALL_MATCH = {  # db ids 0..3: every query has its frame
 
 @pytest.mark.parametrize("convention", PR_CONVENTIONS)
 def test_hand_made_all_queries_matched(convention):
-    ev = evaluate(HAND_SIM, np.arange(4), np.arange(4), 0, pr_convention=convention, ks=(2, 3))
+    ev = evaluate_similarity(
+        HAND_SIM, np.arange(4), np.arange(4), 0, pr_convention=convention, ks=(2, 3)
+    )
     recall, area, r100 = HAND_ALL_MATCH[convention]
     np.testing.assert_allclose(ev.pr_precision, HAND_P)
     np.testing.assert_allclose(ev.pr_recall, recall)
@@ -210,7 +198,7 @@ HAND_UNMATCHED = {  # db ids [0, 1, 2, 5]: query id 3 has no true match at toler
 @pytest.mark.parametrize("convention", PR_CONVENTIONS)
 def test_hand_made_with_an_unmatched_query(convention):
     db_ids = np.array([0, 1, 2, 5])
-    ev = evaluate(HAND_SIM, np.arange(4), db_ids, 0, pr_convention=convention, ks=(2,))
+    ev = evaluate_similarity(HAND_SIM, np.arange(4), db_ids, 0, pr_convention=convention, ks=(2,))
     recall, area, r100 = HAND_UNMATCHED[convention]
     np.testing.assert_allclose(ev.pr_precision, HAND_P)
     np.testing.assert_allclose(ev.pr_recall, recall)
@@ -228,11 +216,11 @@ def test_hand_made_tolerance_turns_a_wrong_match_right():
     db_ids = np.array([0, 1, 2, 5])
     # q3 (id 3): best match db0 (id 0) is 3 frames off; tolerance 2 gives it true matches (1, 2,
     # 5) but its best match stays wrong; tolerance 3 makes it right.
-    ev2 = evaluate(HAND_SIM, np.arange(4), db_ids, 2)
+    ev2 = evaluate_similarity(HAND_SIM, np.arange(4), db_ids, 2)
     assert ev2.has_match.all()
     # q1 (id 1): best match id 5 is 4 off -> still wrong; q3 too
     np.testing.assert_array_equal(ev2.best_correct, [True, False, True, False])
-    ev3 = evaluate(HAND_SIM, np.arange(4), db_ids, 3)
+    ev3 = evaluate_similarity(HAND_SIM, np.arange(4), db_ids, 3)
     np.testing.assert_array_equal(ev3.best_correct, [True, False, True, True])
     assert ev3.recall_at_1 == 0.75
 
@@ -246,14 +234,14 @@ def test_hand_made_tolerance_turns_a_wrong_match_right():
 def test_random_matches_reference(seed, ties, convention):
     sim, qids, dids = random_case(seed, ties=ties, all_match=seed % 2 == 1)
     tol = seed % 3
-    ev = evaluate(sim, qids, dids, tol, pr_convention=convention, ks=(1, 2, 5, 10, 20))
+    ev = evaluate_similarity(sim, qids, dids, tol, pr_convention=convention, ks=(1, 2, 5, 10, 20))
     assert_matches_ref(ev, ref_evaluate(sim, qids, dids, tol, convention, ks=(1, 2, 5, 10, 20)))
 
 
 def test_random_cases_exercise_what_they_claim():
     """Guard the generator: unmatched queries, wrong best matches and ties really occur."""
     sim, qids, dids = random_case(0, ties=True)
-    ev = evaluate(sim, qids, dids, 0)
+    ev = evaluate_similarity(sim, qids, dids, 0)
     assert 0 < ev.has_match.sum() < len(qids)
     assert 0 < ev.best_correct.sum() < ev.has_match.sum()
     assert len(np.unique(ev.best_scores)) < len(qids)
@@ -266,7 +254,7 @@ def test_small_query_sets_match_reference(seed):
     sim = np.round(rng.normal(size=(nq, ndb)), 1)
     qids, dids = rng.integers(0, 8, nq), rng.integers(0, 8, ndb)
     for convention in PR_CONVENTIONS:
-        ev = evaluate(sim, qids, dids, 1, pr_convention=convention)
+        ev = evaluate_similarity(sim, qids, dids, 1, pr_convention=convention)
         assert_matches_ref(ev, ref_evaluate(sim, qids, dids, 1, convention))
 
 
@@ -276,7 +264,7 @@ def test_small_query_sets_match_reference(seed):
 @pytest.mark.parametrize("seed", range(4))
 def test_against_sklearn_precision_recall_curve(seed):
     sim, qids, dids = random_case(seed, ties=seed % 2 == 0)
-    ev = evaluate(sim, qids, dids, 1)  # vpr_bench
+    ev = evaluate_similarity(sim, qids, dids, 1)  # vpr_bench
     assert ev.best_correct.any()
     sk_p, sk_r, sk_t = precision_recall_curve(ev.best_correct, ev.best_scores)
     # sklearn lists loosest first and puts (precision 1, recall 0) last; ours is the reverse
@@ -312,7 +300,7 @@ def test_evaluate_equals_evaluate_top_k(seed):
     sim, qids, dids = random_case(seed, ties=True)
     s, i = ref_top_k(sim, 10)
     for convention in PR_CONVENTIONS:
-        a = evaluate(sim, qids, dids, 1, pr_convention=convention)
+        a = evaluate_similarity(sim, qids, dids, 1, pr_convention=convention)
         b = evaluate_top_k(s, i, qids, dids, 1, pr_convention=convention)
         assert a.scalars() == b.scalars()
         for f in ("pr_precision", "pr_recall", "pr_thresholds", "best_scores", "best_correct"):
@@ -321,7 +309,8 @@ def test_evaluate_equals_evaluate_top_k(seed):
     # more columns than needed change nothing
     s20, i20 = ref_top_k(sim, 20)
     assert (
-        evaluate_top_k(s20, i20, qids, dids, 1).scalars() == evaluate(sim, qids, dids, 1).scalars()
+        evaluate_top_k(s20, i20, qids, dids, 1).scalars()
+        == evaluate_similarity(sim, qids, dids, 1).scalars()
     )
 
 
@@ -331,7 +320,7 @@ def test_evaluate_sends_ties_to_the_lowest_database_index():
     sim[0] = 1.0  # a row of all-equal scores
     ids = np.arange(40) * 10  # tolerance 0: only the query's own frame is correct
     for query_ids in (ids[:25], ids[15:]):
-        ev = evaluate(sim, query_ids, ids, 0)
+        ev = evaluate_similarity(sim, query_ids, ids, 0)
         _, ref = ref_top_k(sim, 10)
         np.testing.assert_array_equal(ev.best_correct, ids[ref[:, 0]] == query_ids)
         for k in (1, 5, 10):
@@ -340,7 +329,7 @@ def test_evaluate_sends_ties_to_the_lowest_database_index():
 
 
 def test_scalars_dict():
-    ev = evaluate(HAND_SIM, np.arange(4), np.arange(4), 0)
+    ev = evaluate_similarity(HAND_SIM, np.arange(4), np.arange(4), 0)
     d = ev.scalars()
     assert list(d) == list(SCALARS)
     assert all(type(v) is float for v in d.values())
@@ -354,7 +343,7 @@ def test_scalars_dict():
 @pytest.mark.parametrize("seed", range(3))
 def test_pr_counts_reproduce_the_curve(seed, convention):
     sim, qids, dids = random_case(seed, ties=True)
-    ev = evaluate(sim, qids, dids, 1, pr_convention=convention)
+    ev = evaluate_similarity(sim, qids, dids, 1, pr_convention=convention)
     b = (ev.best_scores, ev.best_correct, ev.has_match)
     tp, fp, tn, fn = pr_counts(*b, ev.pr_thresholds, pr_convention=convention)
     nq = len(qids)
@@ -401,7 +390,7 @@ def ref_create_pr_tutorial(s_dbq, gt, n_thresh=100):
 @pytest.mark.parametrize("seed", range(3))
 def test_pr_counts_at_vpr_tutorial_sampled_thresholds(seed):
     sim, qids, dids = random_case(seed)
-    ev = evaluate(sim, qids, dids, 1, pr_convention="vpr_tutorial")
+    ev = evaluate_similarity(sim, qids, dids, 1, pr_convention="vpr_tutorial")
     ref_p, ref_r = ref_create_pr_tutorial(sim.T, ref_gt(qids, dids, 1))
     t = np.linspace(ev.best_scores.max(), ev.best_scores.min(), 100)
     tp, fp, _, fn = pr_counts(
@@ -415,7 +404,7 @@ def test_pr_counts_at_vpr_tutorial_sampled_thresholds(seed):
 
 def test_pr_counts_tensorboard_thresholds():
     sim, qids, dids = random_case(3)
-    ev = evaluate(sim, qids, dids, 1)
+    ev = evaluate_similarity(sim, qids, dids, 1)
     mapped = (np.tanh(ev.best_scores) + 1) / 2  # any increasing map into [0, 1]
     t = np.linspace(0, 1, 21)
     tp, fp, tn, fn = pr_counts(mapped, ev.best_correct, ev.has_match, t)
@@ -433,7 +422,7 @@ def test_pr_counts_tensorboard_thresholds():
 def test_precision_at_full_recall_is_fraction_correct(seed):
     sim, qids, dids = random_case(seed, ties=True, all_match=True)
     for convention in PR_CONVENTIONS:
-        ev = evaluate(sim, qids, dids, 0, pr_convention=convention)
+        ev = evaluate_similarity(sim, qids, dids, 0, pr_convention=convention)
         assert ev.has_match.all()
         assert ev.precision_at_full_recall == pytest.approx(ev.recall_at_1)
         assert ev.recall_at_k[1] == pytest.approx(ev.recall_at_1)
@@ -448,7 +437,7 @@ def test_precision_at_full_recall_is_fraction_correct(seed):
 @pytest.mark.parametrize("seed", range(4))
 def test_curves_are_monotone_and_conventions_ordered(seed):
     sim, qids, dids = random_case(seed, ties=True)
-    evs = {c: evaluate(sim, qids, dids, 1, pr_convention=c) for c in PR_CONVENTIONS}
+    evs = {c: evaluate_similarity(sim, qids, dids, 1, pr_convention=c) for c in PR_CONVENTIONS}
     for ev in evs.values():
         assert np.all(np.diff(ev.pr_recall) >= 0)
         assert np.all(np.diff(ev.pr_thresholds) < 0)
@@ -467,7 +456,7 @@ def test_widening_tolerance_never_lowers_recall(seed):
     sim, qids, dids = random_case(seed, all_match=True)
     previous = None
     for tol in range(0, 8):
-        ev = evaluate(sim, qids, dids, tol)
+        ev = evaluate_similarity(sim, qids, dids, tol)
         if previous is not None:
             assert ev.recall_at_1 >= previous.recall_at_1
             for k, v in ev.recall_at_k.items():  # every query has a match at every tolerance
@@ -476,7 +465,7 @@ def test_widening_tolerance_never_lowers_recall(seed):
         previous = ev
     # with some queries unmatched, recall@1 over all queries still never drops
     sim, qids, dids = random_case(seed)
-    r1 = [evaluate(sim, qids, dids, tol).recall_at_1 for tol in range(8)]
+    r1 = [evaluate_similarity(sim, qids, dids, tol).recall_at_1 for tol in range(8)]
     assert np.all(np.diff(r1) >= 0)
 
 
@@ -485,8 +474,8 @@ def test_permuting_database_and_queries_changes_nothing():
     rng = np.random.default_rng(0)
     pq, pd = rng.permutation(len(qids)), rng.permutation(len(dids))
     for convention in PR_CONVENTIONS:
-        a = evaluate(sim, qids, dids, 2, pr_convention=convention)
-        b = evaluate(sim[pq][:, pd], qids[pq], dids[pd], 2, pr_convention=convention)
+        a = evaluate_similarity(sim, qids, dids, 2, pr_convention=convention)
+        b = evaluate_similarity(sim[pq][:, pd], qids[pq], dids[pd], 2, pr_convention=convention)
         for name in SCALARS:
             assert getattr(a, name) == pytest.approx(getattr(b, name), abs=1e-12)
         np.testing.assert_array_equal(a.best_correct[pq], b.best_correct)
@@ -541,7 +530,7 @@ def test_route_sized_top_k_is_exact_without_a_dense_matrix():
 @pytest.mark.parametrize("convention", PR_CONVENTIONS)
 def test_no_query_has_a_match(convention):
     sim = np.random.default_rng(0).normal(size=(5, 6))
-    ev = evaluate(sim, np.arange(100, 105), np.arange(6), 2, pr_convention=convention)
+    ev = evaluate_similarity(sim, np.arange(100, 105), np.arange(6), 2, pr_convention=convention)
     assert not ev.has_match.any()
     assert ev.scalars() == dict.fromkeys(SCALARS, 0.0)
     np.testing.assert_array_equal(ev.pr_recall, 0.0)
@@ -551,7 +540,7 @@ def test_no_query_has_a_match(convention):
 @pytest.mark.parametrize("convention", PR_CONVENTIONS)
 def test_all_scores_equal(convention):
     sim = np.full((4, 5), 0.3)
-    ev = evaluate(sim, np.arange(4), np.arange(5), 0, pr_convention=convention)
+    ev = evaluate_similarity(sim, np.arange(4), np.arange(5), 0, pr_convention=convention)
     # every query picks db 0 (lowest index); only query 0 is right
     np.testing.assert_array_equal(ev.best_correct, [True, False, False, False])
     np.testing.assert_array_equal(ev.pr_thresholds, [np.inf, 0.3])
@@ -567,7 +556,7 @@ def test_all_scores_equal(convention):
 @pytest.mark.parametrize("right", [True, False])
 def test_single_query(convention, right):
     sim = np.array([[0.2, 0.9, 0.1]]) if right else np.array([[0.9, 0.2, 0.1]])
-    ev = evaluate(sim, [1], [0, 1, 2], 0, pr_convention=convention)
+    ev = evaluate_similarity(sim, [1], [0, 1, 2], 0, pr_convention=convention)
     assert ev.recall_at_1 == float(right)
     assert ev.auc_pr == (1.0 if right else 0.0)
     assert ev.recall_at_100_precision == float(right)
@@ -580,7 +569,7 @@ def test_nan_scores_raise():
     sim = np.random.default_rng(0).normal(size=(3, 4))
     sim[1, 2] = np.nan
     with pytest.raises(ValueError, match="NaN"):
-        evaluate(sim, np.arange(3), np.arange(4), 0)
+        evaluate_similarity(sim, np.arange(3), np.arange(4), 0)
     s, i = ref_top_k(np.nan_to_num(sim), 4)
     s[2, 3] = np.nan
     with pytest.raises(ValueError, match="NaN"):
@@ -595,11 +584,11 @@ def test_bad_inputs_raise_one_line_errors():
     s_inf = s.copy()
     s_inf[1, 0] = np.inf
     cases = [
-        (lambda: evaluate(HAND_SIM, q, d, 0, pr_convention="lowry"), "pr_convention"),
-        (lambda: evaluate(HAND_SIM.T[:3], q, d, 0), "n_queries, n_db"),
-        (lambda: evaluate(HAND_SIM, q, d, -1), "tolerance"),
-        (lambda: evaluate(HAND_SIM, q, d, 1.5), "tolerance"),
-        (lambda: evaluate(HAND_SIM, q + 0.5, d, 0), "integer frame ids"),
+        (lambda: evaluate_similarity(HAND_SIM, q, d, 0, pr_convention="lowry"), "pr_convention"),
+        (lambda: evaluate_similarity(HAND_SIM.T[:3], q, d, 0), "n_queries, n_db"),
+        (lambda: evaluate_similarity(HAND_SIM, q, d, -1), "tolerance"),
+        (lambda: evaluate_similarity(HAND_SIM, q, d, 1.5), "tolerance"),
+        (lambda: evaluate_similarity(HAND_SIM, q + 0.5, d, 0), "integer frame ids"),
         (lambda: evaluate_top_k(s, i + 1, q, d, 0), r"\[0, 4\)"),
         (lambda: evaluate_top_k(s[:, ::-1], i[:, ::-1], q, d, 0), "best first"),
         (lambda: evaluate_top_k(s[:, :2], i[:, :2], q, d, 0), "top 4"),
@@ -629,12 +618,12 @@ def test_integral_float_ids_and_padded_top_k_are_accepted():
 def test_float32_and_integer_similarities():
     sim, qids, dids = random_case(2, ties=True)
     sim32 = sim.astype(np.float32)
-    a = evaluate(sim32, qids, dids, 1)
-    b = evaluate(sim32.astype(np.float64), qids, dids, 1)
+    a = evaluate_similarity(sim32, qids, dids, 1)
+    b = evaluate_similarity(sim32.astype(np.float64), qids, dids, 1)
     assert a.scalars() == b.scalars()
     np.testing.assert_array_equal(a.best_scores, b.best_scores)
     simu8 = np.round((sim - sim.min()) * 10).astype(np.uint8)  # heavy ties, unsigned
-    c = evaluate(simu8, qids, dids, 1)
+    c = evaluate_similarity(simu8, qids, dids, 1)
     assert_matches_ref(c, ref_evaluate(simu8.astype(np.float64), qids, dids, 1, "vpr_bench"))
 
 
@@ -643,7 +632,7 @@ def test_extended_precision_matches_sklearn_curve(seed):
     """EP from scikit-learn's PR curve of the best matches (the vpr_bench convention): its
     strictest threshold's precision plus its largest recall at precision 1, halved."""
     sim, q, d = random_case(seed, ties=seed % 2 == 1)
-    ev = evaluate(sim, q, d, 2)
+    ev = evaluate_similarity(sim, q, d, 2)
     precision, recall, _ = precision_recall_curve(ev.best_correct, ev.best_scores)
     precision, recall = precision[:-1], recall[:-1]  # drop sklearn's appended (1, 0)
     at_full = recall[precision == 1.0]
@@ -654,8 +643,12 @@ def test_extended_precision_matches_sklearn_curve(seed):
 
 def test_extended_precision_hand_cases():
     # most confident match wrong: R_P100 = 0, P_R0 = 0
-    ev = evaluate(np.array([[0.9, 0.0], [0.0, 0.5]]), np.array([10, 20]), np.array([20, 10]), 0)
+    ev = evaluate_similarity(
+        np.array([[0.9, 0.0], [0.0, 0.5]]), np.array([10, 20]), np.array([20, 10]), 0
+    )
     assert ev.extended_precision == 0.0
     # all right: P_R0 = 1 and R_P100 = 1
-    ev = evaluate(np.array([[0.9, 0.0], [0.0, 0.5]]), np.array([10, 20]), np.array([10, 20]), 0)
+    ev = evaluate_similarity(
+        np.array([[0.9, 0.0], [0.0, 0.5]]), np.array([10, 20]), np.array([10, 20]), 0
+    )
     assert ev.extended_precision == 1.0

@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import LogLines, write_release
+from tests.conftest import LogLines
+from tests.inputs import frame_image, second_level, source_frame, write_release, write_video
 from vpr_jax.data import nordland
 from vpr_jax.data.frames import frame_id_from_name, parse_frame_list
 from vpr_jax.data.nordland import load_nordland, read_folders, read_image_release, read_videos
@@ -21,12 +22,6 @@ H, W = IMAGE_SHAPE
 
 # --------------------------------------------------------------------------------------------
 # helpers
-
-
-def frame_image(season: str, frame: int) -> np.ndarray:
-    """A deterministic (32, 64) uint8 image for (season, frame)."""
-    seed = (sum(map(ord, season)) * 100_003 + frame) % (2**32)
-    return np.random.default_rng(seed).integers(0, 256, IMAGE_SHAPE, dtype=np.uint8)
 
 
 def make_release(root, season: str, frames) -> None:
@@ -256,33 +251,6 @@ def test_folders_file_without_number_is_an_error(tmp_path):
 
 # --------------------------------------------------------------------------------------------
 # season videos
-
-SRC_H, SRC_W = 96, 160  # 2.5x wider, 3x higher than 64x32: a non-trivial area resize
-
-
-def second_level(second: int) -> int:
-    return 40 + 50 * second
-
-
-def source_frame(k: int, fps: float) -> np.ndarray:
-    """Left half: brightness of the frame's second; right half: 0 for a second's first frame,
-    bright for any later one; bottom rows: 1-pixel stripes that only area resizing averages."""
-    second = math.floor(k / fps + 1e-9)
-    first_of_second = math.ceil(second * fps - 1e-9)
-    img = np.zeros((SRC_H, SRC_W, 3), np.uint8)
-    img[:, : SRC_W // 2] = second_level(second)
-    img[:, SRC_W // 2 :] = 0 if k == first_of_second else 160 + 3 * (k - first_of_second)
-    img[2 * SRC_H // 3 :, 0::2] = 255
-    img[2 * SRC_H // 3 :, 1::2] = 0
-    return img
-
-
-def write_video(path, fps: float, n_frames: int) -> None:
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (SRC_W, SRC_H))
-    assert writer.isOpened()
-    for k in range(n_frames):
-        writer.write(source_frame(k, fps))
-    writer.release()
 
 
 def decoded_small(path, k: int) -> np.ndarray:

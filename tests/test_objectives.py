@@ -5,12 +5,12 @@ import jax
 import numpy as np
 import pytest
 
-from experiments.cells import pair_data
-from tests.conftest import run_cli, tail_validation, write_release
-from tests.test_nordland import frame_image
+from tests.conftest import assert_one_line_error, run_cli, tail_validation
+from tests.inputs import frame_image, write_release
 from vpr_jax.config import SplitConfig, TrainConfig, parse_config
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.data.nordland import read_image_release
+from vpr_jax.data.pair import pair_data
 from vpr_jax.data.splits import make_split
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
@@ -74,7 +74,13 @@ def test_cross_season_scores_either_season_against_the_places_mean():
     ) == pytest.approx(expected.mean(), rel=1e-5)
 
 
-@pytest.mark.parametrize("spec", [ae.FAESpec(hidden=16), ae.CAESpec((4, 8), (3, 3), 8, 2)])
+@pytest.mark.parametrize(
+    "spec",
+    [
+        ae.FAESpec(hidden=16),
+        ae.CAESpec(channels=(4, 8), kernel_sizes=(3, 3), code_channels=8, space_to_depth=2),
+    ],
+)
 def test_cross_season_trains_checkpoints_and_loads(spec, tmp_path):
     images = np.concatenate([_images(120, 4), _images(120, 4) * 0.6 + 0.2])  # two "seasons"
     train, val = tail_validation(images, 2, 0.1)
@@ -82,41 +88,23 @@ def test_cross_season_trains_checkpoints_and_loads(spec, tmp_path):
         epochs=3, batch_size=32, learning_rate=3e-3, patience=10, checkpoint_every_s=0
     )
     pairs, val_pairs = (objectives.training_data("cross_season", x) for x in (train, val))
-    result = fit_autoencoder(
-        spec,
-        pairs,
-        val_pairs,
-        jax.random.key(0),
-        settings,
-        checkpoint_dir=tmp_path / "m",
-        objective="cross_season",
-    )
+
+    def fit(train, val, objective):
+        key = jax.random.key(0)
+        return fit_autoencoder(
+            spec, train, val, key, settings, checkpoint_dir=tmp_path / "m", objective=objective
+        )
+
+    result = fit(pairs, val_pairs, "cross_season")
     assert result.steps == 3 * (len(pairs) // 16)  # 32 images a step: 16 places
     encode, params = load_encoder(tmp_path / "m")
     np.testing.assert_array_equal(
         encode(params, val[:5]), ae.make_encode(result.graphdef)(result.params, val[:5])
     )
-    again = fit_autoencoder(
-        spec,
-        pairs,
-        val_pairs,
-        jax.random.key(0),
-        settings,
-        checkpoint_dir=tmp_path / "m",
-        objective="cross_season",
-    )
-    assert again.restored
+    assert fit(pairs, val_pairs, "cross_season").restored
     # The objective is part of the model's identity: the seed's objective does not reuse it.
     with pytest.raises(UserError, match="other data or settings"):
-        fit_autoencoder(
-            spec,
-            train,
-            val,
-            jax.random.key(0),
-            settings,
-            checkpoint_dir=tmp_path / "m",
-            objective="reconstruct",
-        )
+        fit(train, val, "reconstruct")
 
 
 def test_cross_season_lowers_its_validation_loss():
@@ -155,6 +143,4 @@ def test_an_objective_list_is_one_value_or_many():
     ],
 )
 def test_bad_objective_or_model_is_one_line(args, words, tmp_path):
-    proc = run_cli(*args, f"logdir={tmp_path / 'runs'}")
-    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr and all(w in proc.stderr for w in words), proc.stderr
+    assert_one_line_error(run_cli(*args, f"logdir={tmp_path / 'runs'}"), *words)

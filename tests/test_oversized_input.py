@@ -8,19 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import run_cli
-from tests.test_nordland import SRC_H, SRC_W, write_video
+from tests.conftest import assert_one_line_error, run_cli
+from tests.inputs import FOLDERS, SRC_H, SRC_W, write_folders, write_video
 from vpr_jax.data.image_header import image_size
-
-FOLDERS = [
-    "data.source=folders",
-    "split.n_train=30",
-    "split.n_test=10",
-    "split.gap=2",
-    "methods=[raw]",
-    "season_pairs=summer-winter",
-    "data.seasons=[summer,winter]",
-]
 
 
 @pytest.mark.parametrize("ext", [".png", ".jpg", ".bmp"])
@@ -50,41 +40,25 @@ def _huge_png(path, width: int, height: int) -> None:
     )
 
 
-def _folders(root, n=50):
-    rng = np.random.default_rng(1)
-    for season in ("summer", "winter"):
-        (root / season).mkdir(parents=True)
-        for i in range(n):
-            image = rng.integers(0, 256, (32, 64), np.uint8)
-            cv2.imwrite(str(root / season / f"frame_{i:04d}.png"), image)
-    return root
-
-
-def _refused(proc, *words):
-    lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2 and len(lines) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr and all(w in lines[0] for w in words), lines[0]
-
-
 def test_a_30000_square_png_is_refused_from_its_header(tmp_path):
-    root = _folders(tmp_path / "data")
+    root = write_folders(tmp_path / "data")
     bomb = root / "winter" / "frame_0007.png"
     _huge_png(bomb, 30_000, 30_000)
     assert bomb.stat().st_size < 100_000 and image_size(bomb) == (30_000, 30_000)
     proc = run_cli(*FOLDERS, f"data.root={root}", f"logdir={tmp_path / 'runs'}")
-    _refused(proc, str(bomb), "30,000 x 30,000", "data.max_pixels")
+    assert_one_line_error(proc, str(bomb), "30,000 x 30,000", "data.max_pixels")
     assert not (tmp_path / "runs").exists()
 
 
 def test_max_pixels_applies_to_jpeg_and_to_video_frames(tmp_path):
-    root = _folders(tmp_path / "data")
+    root = write_folders(tmp_path / "data")
     large = root / "summer" / "frame_0003.jpg"
     (root / "summer" / "frame_0003.png").unlink()
     cv2.imwrite(str(large), np.zeros((200, 300, 3), np.uint8))
     proc = run_cli(
         *FOLDERS, f"data.root={root}", "data.max_pixels=50000", f"logdir={tmp_path / 'runs'}"
     )
-    _refused(proc, str(large), "300 x 200", "data.max_pixels=50,000")
+    assert_one_line_error(proc, str(large), "300 x 200", "data.max_pixels=50,000")
     videos = tmp_path / "videos"
     videos.mkdir()
     for season in ("summer", "winter"):
@@ -97,4 +71,4 @@ def test_max_pixels_applies_to_jpeg_and_to_video_frames(tmp_path):
         f"data.cache_dir={tmp_path / 'cache'}",
         f"logdir={tmp_path / 'runs'}",
     )
-    _refused(proc, "video", f"{SRC_W} x {SRC_H}", "data.max_pixels")
+    assert_one_line_error(proc, "video", f"{SRC_W} x {SRC_H}", "data.max_pixels")

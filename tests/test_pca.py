@@ -7,7 +7,7 @@ import pytest
 from sklearn.decomposition import PCA
 
 from vpr_jax.encoders import pca
-from vpr_jax.matching import cosine_similarity, suffix_cosine
+from vpr_jax.evaluation.matching import cosine_similarity, suffix_cosine
 
 
 def _data(n, d, seed=0):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vpr_jax.preprocess import Z_SPAN, patch_normalize, patch_zscores
+from vpr_jax.data.preprocess import Z_SPAN, patch_normalize, patch_zscores
 
 
 def images(n=5, seed=0):

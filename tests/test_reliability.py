@@ -6,16 +6,26 @@ import shlex
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.conftest import REPO, SMALL, read_run, run_cli
+from tests.conftest import (
+    SMALL,
+    assert_one_line_error,
+    env_with_repo,
+    private_xla_cache,
+    read_run,
+    run_cli,
+    run_process,
+    started,
+)
 from vpr_jax import load_encoder
-from vpr_jax.metrics import SCALAR_NAMES
-from vpr_jax.results import read_results
+from vpr_jax.evaluation.metrics import SCALAR_NAMES
+from vpr_jax.outputs.results import read_results
 
-METRICS = (*SCALAR_NAMES, "n_iter", "converged")
+METRICS = (*SCALAR_NAMES, "n_iter", "converged", "stopped_early")
 # Two pairs, raw pixels and an FAE trained 6 epochs on the cross_season objective (pairs of
 # aligned places), checkpointed after every epoch.
 KILLABLE = [
@@ -51,19 +61,13 @@ AS_IN_A_TERMINAL = (
 )
 
 
-def _signal_during(line_part: str, args: list[str], sig=signal.SIGKILL):
+def _signal_during(line_part: str, args: list[str], tmp_path: Path, sig=signal.SIGKILL):
     """Start the sweep, send it ``sig`` once a line containing ``line_part`` is printed;
     returns (exit code, stdout up to there, stderr)."""
-    proc = subprocess.Popen(
-        [sys.executable, "-c", AS_IN_A_TERMINAL, *args],
-        cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
-        text=True,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-    )
-    seen = []
-    try:
+    pipes = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE}
+    env = env_with_repo(**private_xla_cache(tmp_path))
+    with started([sys.executable, "-c", AS_IN_A_TERMINAL, *args], env=env, **pipes) as proc:
+        seen = []
         for line in proc.stdout:
             seen.append(line)
             if line_part in line:
@@ -71,7 +75,6 @@ def _signal_during(line_part: str, args: list[str], sig=signal.SIGKILL):
                 break
         seen.extend(proc.stdout)
         err = proc.stderr.read()
-    finally:
         proc.wait()
     return proc.returncode, "".join(seen), err
 
@@ -82,7 +85,7 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
 
     logdir, ck = tmp_path / "cut" / "runs", tmp_path / "cut" / "checkpoints"
     args = [*KILLABLE, f"logdir={logdir}", f"train.checkpoint_dir={ck}"]
-    code, printed, _ = _signal_during("spring-fall fae_cross_season epoch 3/6", args)
+    code, printed, _ = _signal_during("spring-fall fae_cross_season epoch 3/6", args, tmp_path)
     assert code == -signal.SIGKILL, printed[-2000:]
     assert "summer-fall fae cross_season:" in printed  # the first pair was done before the kill
     rows_at_kill = read_results(logdir / "results.csv")
@@ -109,7 +112,7 @@ def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):
     logdir, ck = tmp_path / "runs", tmp_path / "checkpoints"
     args = [*KILLABLE, f"logdir={logdir}", f"train.checkpoint_dir={ck}"]
     code, printed, err = _signal_during(
-        "summer-fall fae_cross_season epoch 2/6", args, signal.SIGINT
+        "summer-fall fae_cross_season epoch 2/6", args, tmp_path, signal.SIGINT
     )
     assert code == 130, (printed[-2000:], err)
     assert "Traceback" not in err + printed
@@ -134,7 +137,7 @@ def test_sigterm_stops_like_ctrl_c(tmp_path):
         f"train.checkpoint_dir={tmp_path / 'checkpoints'}",
     ]
     code, printed, err = _signal_during(
-        "summer-fall fae_cross_season epoch 2/6", args, signal.SIGTERM
+        "summer-fall fae_cross_season epoch 2/6", args, tmp_path, signal.SIGTERM
     )
     assert code == 128 + signal.SIGTERM, (printed[-2000:], err)
     (line,) = err.strip().splitlines()
@@ -171,7 +174,7 @@ def test_another_seed_gives_another_route_and_other_initial_weights(small_sweep,
 
 
 HOLD_LOCK = (
-    "import sys, time; from vpr_jax.logdir import lock_logdir; "
+    "import sys, time; from vpr_jax.outputs.logdir import lock_logdir; "
     "lock_logdir(__import__('pathlib').Path(sys.argv[1])); print('held', flush=True); "
     "time.sleep(600)"
 )
@@ -183,24 +186,13 @@ def test_one_sweep_per_logdir_and_the_lock_dies_with_its_holder(tmp_path):
     assert run_cli(*args).returncode == 0
     assert not (logdir / ".incomplete").exists()  # a finished sweep leaves nothing behind
     before = (logdir / "results.csv").read_bytes()
-    holder = subprocess.Popen(
-        [sys.executable, "-c", HOLD_LOCK, str(logdir)],
-        cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
+    # Leaving the block SIGKILLs the holder.
+    with started([sys.executable, "-c", HOLD_LOCK, str(logdir)], stdout=subprocess.PIPE) as holder:
         assert holder.stdout.readline().strip() == "held"
         second = run_cli(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
-        lines = second.stderr.strip().splitlines()
-        assert second.returncode == 2 and len(lines) == 1, second.stderr
-        assert "in use by another sweep" in lines[0] and f"pid {holder.pid}" in lines[0]
-        assert "another logdir=PATH" in lines[0] and "Traceback" not in second.stderr
+        words = ("in use by another sweep", f"pid {holder.pid}", "another logdir=PATH")
+        assert_one_line_error(second, *words)
         assert (logdir / "results.csv").read_bytes() == before  # nothing touched
-    finally:
-        holder.send_signal(signal.SIGKILL)
-        holder.wait()
     # SIGKILL leaves no stale lock: the same command now runs and adds its cells once.
     third = run_cli(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
     assert third.returncode == 0, third.stderr
@@ -222,23 +214,11 @@ def test_logdirs_of_one_name_cannot_train_into_the_same_checkpoint_folder(tmp_pa
         f"train.checkpoint_dir={checkpoints}",
     ]
     model = checkpoints / "quick" / "summer-fall" / "fae"
-    holder = subprocess.Popen(
-        [sys.executable, "-c", HOLD_LOCK, str(model)],
-        cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
+    with started([sys.executable, "-c", HOLD_LOCK, str(model)], stdout=subprocess.PIPE) as holder:
         assert holder.stdout.readline().strip() == "held"
         proc = run_cli(*args, f"logdir={tmp_path / 'b' / 'quick'}")
-        lines = proc.stderr.strip().splitlines()
-        assert proc.returncode == 2 and len(lines) == 1, proc.stderr
-        assert f"checkpoint folder {model} is in use by another sweep" in lines[0]
-        assert f"pid {holder.pid}" in lines[0]
-    finally:
-        holder.send_signal(signal.SIGKILL)
-        holder.wait()
+        words = (f"checkpoint folder {model} is in use by another sweep", f"pid {holder.pid}")
+        assert_one_line_error(proc, *words)
     assert run_cli(*args, f"logdir={tmp_path / 'b' / 'quick'}").returncode == 0
 
 
@@ -247,13 +227,12 @@ def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
     args = [*SMALL, "methods=[raw,pca]", "removed_pcs=[0,5,20]", f"logdir={logdir}"]
     # A cell's TensorBoard run without basis images is ~42 KB, with them ~54 KB: the first
     # PCA cell that shows removed components cannot be written.
-    proc = _limited(args, 48)  # files up to 48 KiB
-    lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr and "File too large" in lines[0]
-    assert str(logdir) in lines[0] and "rerun the same command" in lines[0]
+    proc = _limited(args, 48, tmp_path)  # files up to 48 KiB
+    line = assert_one_line_error(
+        proc, "File too large", str(logdir), "rerun the same command", returncode=1
+    )
     saved = read_results(logdir / "results.csv")
-    assert 1 <= len(saved) < 3 * 4 and f"{len(saved)} finished cell(s) are saved" in lines[0]
+    assert 1 <= len(saved) < 3 * 4 and f"{len(saved)} finished cell(s) are saved" in line
     again = run_cli(*args)
     assert again.returncode == 0, again.stderr
     rows = read_results(logdir / "results.csv")
@@ -268,18 +247,13 @@ def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
         assert read_run(logdir / row.run).Scalars("metrics/recall_at_1")
 
 
-def _limited(args: list[str], kib: int) -> subprocess.CompletedProcess:
+def _limited(args: list[str], kib: int, tmp_path: Path) -> subprocess.CompletedProcess:
     """The sweep with files limited to ``kib`` KiB: past it writes fail with EFBIG, as on a
     full disk, since the shell ignores SIGXFSZ for the sweep it starts. A shell, not
     preexec_fn: forking this JAX process could deadlock."""
     sweep = shlex.join([sys.executable, "-m", "experiments.sweep", *args])
-    return subprocess.run(
-        ["bash", "-c", f"ulimit -f {kib}; trap '' XFSZ; exec {sweep}"],
-        cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
-        capture_output=True,
-        text=True,
-    )
+    limited = f"ulimit -f {kib}; trap '' XFSZ; exec {sweep}"
+    return run_process(["bash", "-c", limited], env=env_with_repo(**private_xla_cache(tmp_path)))
 
 
 def test_a_checkpoint_that_cannot_be_written_is_one_line_and_the_rerun_completes(tmp_path):
@@ -299,13 +273,12 @@ def test_a_checkpoint_that_cannot_be_written_is_one_line_and_the_rerun_completes
     ]
     # TensorBoard runs stay under 100 KiB; the FAE's optimizer state is a file of ~1.1 MB,
     # which orbax (TensorStore, in its own threads) fails to write.
-    proc = _limited(args, 600)
-    lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr and "File too large (EFBIG)" in lines[0]
-    assert str(models) in lines[0] and "rerun the same command" in lines[0]
+    proc = _limited(args, 600, tmp_path)
+    line = assert_one_line_error(
+        proc, "File too large (EFBIG)", str(models), "rerun the same command", returncode=1
+    )
     saved = read_results(logdir / "results.csv")
-    assert [r.method for r in saved] == ["raw"] and "1 finished cell(s)" in lines[0]
+    assert [r.method for r in saved] == ["raw"] and "1 finished cell(s)" in line
     again = run_cli(*args)
     assert again.returncode == 0, again.stderr
     rows = read_results(logdir / "results.csv")
@@ -320,24 +293,23 @@ def test_a_full_disk_is_one_line_and_the_same_command_completes_once_space_is_fr
     mount.mkdir()
     if (
         os.geteuid() != 0
-        or subprocess.run(
-            ["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs", str(mount)], capture_output=True
+        or run_process(
+            ["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs", str(mount)], timeout=60
         ).returncode
     ):
         pytest.skip("mounting a tmpfs needs root")
     try:
         args = [*SMALL, "methods=[raw,pca]", "removed_pcs=[0,5,20]", f"logdir={mount / 'runs'}"]
         proc = run_cli(*args)
-        lines = proc.stderr.strip().splitlines()
-        assert proc.returncode == 1 and len(lines) == 1, proc.stderr
-        assert "No space left on device (ENOSPC)" in lines[0] and "Traceback" not in proc.stderr
+        line = assert_one_line_error(proc, "No space left on device (ENOSPC)", returncode=1)
         saved = read_results(mount / "runs" / "results.csv")
-        assert f"{len(saved)} finished cell(s) are saved" in lines[0]
-        subprocess.run(["mount", "-o", "remount,size=20m", str(mount)], check=True)
+        assert f"{len(saved)} finished cell(s) are saved" in line
+        remount = run_process(["mount", "-o", "remount,size=20m", str(mount)], timeout=60)
+        assert remount.returncode == 0, remount.stderr
         again = run_cli(*args)
         assert again.returncode == 0, again.stderr
         rows = read_results(mount / "runs" / "results.csv")
         assert len(rows) == len({r.run for r in rows}) == 12
         assert not (mount / "runs" / ".incomplete").exists()
     finally:
-        subprocess.run(["umount", str(mount)], capture_output=True)
+        run_process(["umount", str(mount)], timeout=60)

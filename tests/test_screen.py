@@ -8,8 +8,7 @@ from tests.conftest import LogLines
 from vpr_jax.data.route import Route
 from vpr_jax.data.screen import constant_frames, repeated_frames, screen_route
 from vpr_jax.errors import UserError
-from vpr_jax.matching import degenerate_rows
-from vpr_jax.methods import degenerate_warning
+from vpr_jax.methods.descriptors import degenerate_rows, degenerate_warning
 
 
 def _route(n=40, seed=0):

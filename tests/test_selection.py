@@ -3,7 +3,7 @@ and marked again when the table grows."""
 
 import math
 
-from vpr_jax.results import COLUMNS, ResultRow, append_results, read_results
+from vpr_jax.outputs.results import COLUMNS, ResultRow, append_results, read_results
 
 
 def _row(method="pca", k=0, val=0.5, val_auc=0.5, test=0.5, ds=1, pair="summer-fall"):

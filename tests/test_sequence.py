@@ -5,8 +5,8 @@ import pytest
 
 from tests.conftest import numpy_cosine
 from tests.sequence_reference import sequence_top_k_numpy
-from vpr_jax.matching import top_k_matches
-from vpr_jax.sequence import (
+from vpr_jax.evaluation.matching import top_k_matches
+from vpr_jax.evaluation.sequence import (
     sequence_top_k,
     sequence_top_k_cosine,
     stretch_ids,

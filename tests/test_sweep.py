@@ -10,7 +10,7 @@ from tensorboard.plugins.hparams import plugin_data_pb2
 from tensorboard.util import tensor_util
 
 from tests.conftest import SMALL, numpy_cosine, read_run, run_cli
-from vpr_jax.results import COLUMNS, read_results
+from vpr_jax.outputs.results import COLUMNS, read_results
 
 PAIRS = {"summer-spring", "summer-fall", "spring-fall"}
 
@@ -42,10 +42,12 @@ def test_results_table_has_one_row_per_cell(small_sweep):
         assert r.recall_at_1 <= r.recall_at_5 <= r.recall_at_10
         if r.method == "ica":
             assert 1 <= r.n_iter <= 200 and r.converged == (r.n_iter < 200)
+            assert r.stopped_early == 0
         elif r.method in ("fae", "cae"):
-            assert r.n_iter == 2 and r.converged == 0  # 2 epochs, no early stop
+            assert r.n_iter == 2 and r.stopped_early == 0  # 2 epochs, no early stop
+            assert r.converged == 1  # not an iterative fit with a tolerance
         else:
-            assert r.n_iter == 0 and r.converged == 1
+            assert r.n_iter == 0 and r.converged == 1 and r.stopped_early == 0
     # Exactly one selected row per pair x method x objective (x ds): the best on validation.
     groups = {(r.season_pair, r.method, r.objective, r.ds) for r in rows}
     chosen = [r for r in rows if r.selected]
@@ -83,7 +85,7 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
         tp, fp, tn, fn = data[:4, 0]  # threshold 0 accepts every query
         assert tp / (tp + fp) == pytest.approx(row.recall_at_1, abs=1e-6)
         assert "matches/query_best_true" in tags["images"]
-        for key in ("n_iter", "converged"):
+        for key in ("n_iter", "converged", "stopped_early"):
             (event,) = ea.Scalars(f"fit/{key}")
             assert event.value == getattr(row, key)
         has_removed = "basis/removed_components" in tags["images"]

@@ -4,9 +4,10 @@ test writes itself (from the built-in renderer, so the places are real places)."
 import cv2
 import numpy as np
 
-from tests.conftest import run_cli, write_release
+from tests.conftest import run_cli
+from tests.inputs import write_release
 from vpr_jax.data.synthetic import render_season
-from vpr_jax.results import read_results
+from vpr_jax.outputs.results import read_results
 
 SEASONS = ("summer", "fall")
 N_FRAMES = 90

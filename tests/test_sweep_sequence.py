@@ -3,17 +3,18 @@ back from results.csv and with TensorBoard's reader; a sweep extended by a longe
 computes only the new cells; patch normalisation makes the whole sweep blind to the query
 season's brightness."""
 
-import csv
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
 from tensorboard.plugins.hparams import plugin_data_pb2
 
-from tests.conftest import read_run, run_cli, write_release
+from tests.conftest import read_run, run_cli, shared_folder, shared_sweep
+from tests.inputs import write_release
 from vpr_jax.data.synthetic import synthetic_route
-from vpr_jax.metrics import SCALAR_NAMES
-from vpr_jax.results import COLUMNS, read_results
+from vpr_jax.evaluation.metrics import SCALAR_NAMES
+from vpr_jax.outputs.results import read_results
 
 METRICS = SCALAR_NAMES
 ARGS = [
@@ -32,19 +33,23 @@ ARGS = [
 BRIGHTER = 40  # grey levels added to every query (fall) image
 
 
-@pytest.fixture(scope="module")
-def releases(tmp_path_factory):
-    """The same two seasons as 64x32 PNG releases, the second with a brighter fall."""
+def _write_releases(folder: Path) -> None:
+    """The same two seasons as 64x32 PNG releases, ``base/`` and ``brighter/`` (its fall
+    brighter by BRIGHTER grey levels)."""
     route = synthetic_route(420, ("summer", "fall"), seed=5)
     base = {s: np.rint(im * 200).astype(np.uint8) for s, im in route.images.items()}
-    roots = {}
     for name, shift in (("base", 0), ("brighter", BRIGHTER)):
         shifted = {
             s: frames + np.uint8(shift if s == "fall" else 0)  # <= 240: no clip
             for s, frames in base.items()
         }
-        roots[name] = write_release(tmp_path_factory.mktemp(name) / "data", shifted)
-    return roots
+        write_release(folder / name, shifted)
+
+
+@pytest.fixture(scope="module")
+def releases(tmp_path_factory):
+    folder = shared_folder(tmp_path_factory, "sequence_releases", _write_releases)
+    return {name: folder / name for name in ("base", "brighter")}
 
 
 def _sweep(root, logdir, *extra):
@@ -55,9 +60,9 @@ def _sweep(root, logdir, *extra):
 
 @pytest.fixture(scope="module")
 def base_sweep(releases, tmp_path_factory):
-    logdir = tmp_path_factory.mktemp("base") / "runs"
-    rows, proc = _sweep(releases["base"], logdir)
-    return logdir, rows, proc
+    args = (*ARGS, f"data.root={releases['base']}")
+    logdir, proc = shared_sweep(tmp_path_factory, "sequence_base_sweep", *args)
+    return logdir, read_results(logdir / "results.csv"), proc
 
 
 def test_every_method_runs_at_every_ds_and_sequences_help(base_sweep):
@@ -107,18 +112,6 @@ def test_a_longer_ds_extends_a_finished_sweep(releases, base_sweep, tmp_path):
         ("summer-fall/pca_k000_ds05", 5),
         ("summer-fall/pca_k005_ds05", 5),
     }
-
-
-def test_a_results_table_written_before_the_ds_column_reads_as_single_images(base_sweep, tmp_path):
-    logdir, rows, _ = base_sweep
-    old = tmp_path / "results.csv"
-    with open(logdir / "results.csv") as src, open(old, "w", newline="") as dst:
-        reader = csv.DictReader(src)
-        columns = [c for c in COLUMNS if c != "ds"]
-        writer = csv.DictWriter(dst, fieldnames=columns, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(r for r in reader if r["ds"] == "1")
-    assert read_results(old) == [r for r in rows if r.ds == 1]
 
 
 def test_sequence_lengths_without_enabling_them_are_pointed_out(tmp_path):

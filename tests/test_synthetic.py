@@ -4,22 +4,20 @@ PCA, matching and metrics."""
 
 from __future__ import annotations
 
-import os
+import hashlib
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from tests.conftest import assert_one_line_error, run_process
 from vpr_jax.data.synthetic import DEFAULT_N_FRAMES, SEASONS, render_season, synthetic_route
 from vpr_jax.encoders.pca import fit_pca, project
 from vpr_jax.errors import UserError
-from vpr_jax.matching import cosine_similarity
-from vpr_jax.metrics import evaluate
-
-REPO = Path(__file__).resolve().parent.parent
+from vpr_jax.evaluation.matching import cosine_similarity
+from vpr_jax.evaluation.metrics import evaluate_similarity
 
 # The default protocol: 2,500 training places, a 100-frame gap, 450 test places, tolerance 2.
 TRAIN, TEST = np.arange(2500), np.arange(2600, 3050)
@@ -70,14 +68,38 @@ def test_far_along_a_full_length_route_renders():
 
 
 def test_route_is_frame_aligned_with_step():
-    route = synthetic_route(50, ("summer", "winter"), seed=0, frame_step=10)
-    np.testing.assert_array_equal(route.frame_ids, [0, 10, 20, 30, 40])
-    assert route.frame_ids.dtype == np.int64
-    assert route.seasons == ("summer", "winter") and len(route) == 5
-    for season in route.seasons:
-        np.testing.assert_array_equal(
-            route.images[season], render_season(route.frame_ids, season, seed=0)
-        )
+    # 53 is not a multiple of the step: the route keeps place 50 and stops there.
+    stepped = synthetic_route(53, ("summer", "winter"), seed=0, frame_step=10)
+    full = synthetic_route(53, ("summer", "winter"), seed=0)
+    np.testing.assert_array_equal(stepped.frame_ids, [0, 10, 20, 30, 40, 50])
+    assert stepped.frame_ids.dtype == np.int64 and len(full) == 53
+    assert stepped.seasons == ("summer", "winter") and len(stepped) == 6
+    for season in stepped.seasons:
+        # Rendering is batch-independent: every 10th place of the whole route, to the bit.
+        np.testing.assert_array_equal(stepped.images[season], full.images[season][::10])
+    # Another season is another look at the same places, not a copy.
+    assert np.abs(stepped.images["summer"] - stepped.images["winter"]).mean() > 0.02
+
+
+# The route as of commit 0524d29: sha256 of the frames 0..15 and 3000 of traversal 0. A
+# change to these is a change of the built-in data: every number in the docs moves.
+RECORDED_ROUTE = {
+    (0, "spring"): "0f01828fa8526f06b21bf88e485fa5da55b97ca06fda4aab37658f0947c768ce",
+    (0, "summer"): "145bbb920b2d8a2a134028544b07888533c7acb281115f40ecbe3aff8bfbdd83",
+    (0, "fall"): "6e7810ba495913773fcf66667d96cd7f01ce317e0abc2498480609f46eef81ff",
+    (0, "winter"): "48c6182b21450f3d40c5078332e66960304d3602d892b8e6957fde65a300b51c",
+    (1, "spring"): "380e15432961a6436343bd3c0b1cfaf066e82d83f419fffe4a7f34e8a2d32813",
+    (1, "summer"): "a350ac0636b64199f760b69328f58bddbde4d9234361fe03564653f17c7aac4e",
+    (1, "fall"): "68b2388580409ab92c15c847340c2758aed0b6cf066bb65e824baaa4a706fa52",
+    (1, "winter"): "4f4e87ae63b3ca05c44bb1decc6da638e57e27c71486c97fab87b951b2b768f3",
+}
+
+
+@pytest.mark.parametrize(("seed", "season"), sorted(RECORDED_ROUTE))
+def test_frames_are_bit_identical_to_the_recorded_route(seed, season):
+    frames = render_season(np.r_[np.arange(16), 3000], season, seed=seed)
+    digest = hashlib.sha256(np.ascontiguousarray(frames).tobytes()).hexdigest()
+    assert digest == RECORDED_ROUTE[(seed, season)]
 
 
 def test_neighbouring_frames_overlap_distant_ones_do_not():
@@ -142,14 +164,7 @@ def test_bad_frame_ids_are_user_errors():
 
 
 def _contact_sheet(*args: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    return subprocess.run(
-        [sys.executable, "-m", "experiments.contact_sheet", *args],
-        cwd=REPO,
-        env=env,
-        capture_output=True,
-        text=True,
-    )
+    return run_process([sys.executable, "-m", "experiments.contact_sheet", *args])
 
 
 def test_contact_sheet_command_writes_a_png(tmp_path):
@@ -189,11 +204,10 @@ def test_contact_sheet_command_writes_a_png(tmp_path):
     ],
 )
 def test_contact_sheet_bad_arguments_print_one_line_and_exit_2(tmp_path, args):
+    named = args[0]  # the line names the argument it refuses
     if "--out" not in args:
         args = [*args, "--out", str(tmp_path / "x.png")]
-    proc = _contact_sheet(*args)
-    assert proc.returncode == 2
-    assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
+    assert_one_line_error(_contact_sheet(*args), named)
     assert not (tmp_path / "x.png").exists()
 
 
@@ -201,7 +215,7 @@ def test_contact_sheet_bad_arguments_print_one_line_and_exit_2(tmp_path, args):
 
 
 def _recall_at_1(similarity) -> float:
-    result = evaluate(np.asarray(similarity), TEST, TEST, TOLERANCE)
+    result = evaluate_similarity(np.asarray(similarity), TEST, TEST, TOLERANCE)
     return float(result["recall_at_1"] if isinstance(result, dict) else result.recall_at_1)
 
 

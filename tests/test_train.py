@@ -1,8 +1,6 @@
 """Auto-encoder training: loss falls, checkpoints round-trip, interrupted runs resume exactly."""
 
 import json
-import shutil
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -12,10 +10,11 @@ from tests.conftest import read_run, tail_validation
 from vpr_jax.config import TrainConfig
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.encoders import checkpoints
 from vpr_jax.encoders.saved import load_encoder
 from vpr_jax.encoders.train import fit_autoencoder, make_eval_loss
 from vpr_jax.errors import UserError
-from vpr_jax.tb import TrainingRun
+from vpr_jax.outputs.tb import TrainingRun
 
 SPEC = ae.FAESpec(hidden=16)
 SETTINGS = TrainConfig(epochs=3, batch_size=32, patience=10, checkpoint_every_s=0)
@@ -66,7 +65,9 @@ def _train_steps(run_dir, tag="loss/train") -> list[int]:
     return [e.step for e in read_run(run_dir).Scalars(tag)]
 
 
-@pytest.mark.parametrize("spec", [SPEC, ae.CAESpec((4, 8), (3, 3), 2)])
+@pytest.mark.parametrize(
+    "spec", [SPEC, ae.CAESpec(channels=(4, 8), kernel_sizes=(3, 3), code_channels=2)]
+)
 def test_validation_loss_falls(data, spec):
     train, val = data
     graphdef, initial = ae.build(spec, jax.random.fold_in(jax.random.key(0), 0))
@@ -127,8 +128,6 @@ def test_an_interrupted_run_resumes_at_its_saved_epoch_and_ends_as_an_uninterrup
 
 
 def test_checkpoints_wait_checkpoint_every_s_but_the_last_epoch_is_always_saved(data, tmp_path):
-    from vpr_jax import checkpoints
-
     train, val = data
     rare = TrainConfig(epochs=3, batch_size=32, patience=10, checkpoint_every_s=3600)
     folder = tmp_path / "rare"
@@ -175,112 +174,22 @@ def test_a_checkpoint_of_other_data_or_settings_is_refused(data, tmp_path):
         )
 
 
-def test_an_fae_saved_before_input_centring_loads_as_it_was_trained(data, tmp_path):
-    """FAE checkpoints written before the FAE centred its input carry no ``centre`` in their
-    spec: load_encoder must encode them with the seed's plain layer, and training must not
-    resume them as a centred model."""
+def test_a_checkpoint_of_another_format_is_refused_and_left_alone(data, tmp_path):
+    """Checkpoints carry their format: one of another format is neither resumed nor loaded,
+    and stays as it was."""
     train, val = data
     one = TrainConfig(epochs=1, batch_size=32)
-    folder = tmp_path / "old_fae"
-    fit_autoencoder(
-        ae.FAESpec(hidden=16, centre=0.0), train, val, jax.random.key(4), one, checkpoint_dir=folder
-    )
-    for meta_file in folder.glob("*/meta/metadata"):  # as an older version wrote it
+    folder = tmp_path / "other_format"
+    fit_autoencoder(SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder)
+    for meta_file in folder.glob("*/meta/metadata"):  # as another version would write it
         meta = json.loads(meta_file.read_text())
-        del meta["spec"]["centre"]
-        meta_file.write_text(json.dumps(meta))
-    encode, params = load_encoder(folder)
-    w, b = np.asarray(params["encoder"]["kernel"]), np.asarray(params["encoder"]["bias"])
-    expected = np.maximum(val.reshape(len(val), -1) @ w + b, 0.0)
-    np.testing.assert_allclose(encode(params, val), expected, rtol=1e-4, atol=1e-5)
-    with pytest.raises(UserError, match="other data or settings"):
-        fit_autoencoder(
-            ae.FAESpec(hidden=16), train, val, jax.random.key(4), one, checkpoint_dir=folder
-        )
-
-
-# ------------------------------------------------------ checkpoints of the format before 2026-12
-
-FORMAT1 = Path(__file__).parent / "data" / "checkpoints_format1"  # see its README.md
-FORMAT1_SETTINGS = TrainConfig(epochs=3, batch_size=20, patience=10, checkpoint_every_s=0)
-FORMAT1_IDENTITY = {"made_by": "203990e"}
-
-
-@pytest.fixture()
-def format1(tmp_path):
-    """A copy of the format-1 checkpoints (resuming writes into them) and their data."""
-    shutil.copytree(FORMAT1, tmp_path / "format1")
-    rng = np.random.default_rng(0)
-    return tmp_path / "format1", tail_validation(
-        rng.random((80, 32, 64), dtype=np.float32), 2, 0.25
-    )
-
-
-def _close(a, b) -> bool:
-    # Equal bits on the JAX that wrote them; another release may round differently.
-    return all(
-        np.allclose(x, y, rtol=1e-4, atol=1e-6)
-        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
-    )
-
-
-def test_a_finished_format1_checkpoint_is_restored_and_loads_as_an_encoder(format1):
-    folder, (train, val) = format1
-    spec = ae.CAESpec((2,), (3,), 1)
-    restored = fit_autoencoder(
-        spec,
-        train,
-        val,
-        jax.random.key(7),
-        FORMAT1_SETTINGS,
-        checkpoint_dir=folder / "cae_done",
-        identity=FORMAT1_IDENTITY,
-    )
-    assert restored.restored and restored.epochs == 3
-    assert restored.steps == 3 * (len(train) // 20)
-    trained_now = fit_autoencoder(spec, train, val, jax.random.key(7), FORMAT1_SETTINGS)
-    assert _close(restored.params, trained_now.params)
-    assert restored.best_val_loss == pytest.approx(trained_now.best_val_loss, rel=1e-4)
-    encode, params = load_encoder(folder / "cae_done")
-    assert _equal(params, restored.params)
-    np.testing.assert_array_equal(
-        encode(params, val), ae.make_encode(trained_now.graphdef)(restored.params, val)
-    )
-
-
-def test_an_unfinished_format1_checkpoint_resumes_to_the_uninterrupted_result(format1):
-    folder, (train, val) = format1
-    spec = ae.FAESpec(hidden=2)
-    encode, params = load_encoder(folder / "fae_epoch1")  # the best model after epoch 1
-    w, b = np.asarray(params["encoder"]["kernel"]), np.asarray(params["encoder"]["bias"])
-    np.testing.assert_allclose(
-        encode(params, val),
-        np.maximum((val.reshape(len(val), -1) - 0.5) @ w + b, 0.0),
-        rtol=1e-4,
-        atol=1e-5,
-    )
-    resumed = fit_autoencoder(
-        spec,
-        train,
-        val,
-        jax.random.key(7),
-        FORMAT1_SETTINGS,
-        checkpoint_dir=folder / "fae_epoch1",
-        identity=FORMAT1_IDENTITY,
-    )
-    whole = fit_autoencoder(spec, train, val, jax.random.key(7), FORMAT1_SETTINGS)
-    assert resumed.resumed_epoch == 1 and not resumed.restored
-    assert resumed.epochs == whole.epochs == 3 and resumed.steps == whole.steps
-    assert _close(resumed.params, whole.params)
-    # Resuming wrote today's format; a rerun restores the finished model from it.
-    again = fit_autoencoder(
-        spec,
-        train,
-        val,
-        jax.random.key(7),
-        FORMAT1_SETTINGS,
-        checkpoint_dir=folder / "fae_epoch1",
-        identity=FORMAT1_IDENTITY,
-    )
-    assert again.restored and _equal(again.params, resumed.params)
-    assert (folder / "fae_epoch1" / "3" / "state").is_dir()
+        assert meta["format"] == checkpoints.FORMAT
+        meta_file.write_text(json.dumps({**meta, "format": checkpoints.FORMAT - 1}))
+    before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    for attempt in (
+        lambda: load_encoder(folder),
+        lambda: fit_autoencoder(SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder),
+    ):
+        with pytest.raises(UserError, match="another format .*use a new folder"):
+            attempt()
+    assert {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()} == before

@@ -7,8 +7,8 @@ import os
 import numpy as np
 import pytest
 
-from tests.conftest import run_cli
-from tests.test_oversized_input import FOLDERS, _folders, _refused
+from tests.conftest import assert_one_line_error, run_cli
+from tests.inputs import FOLDERS, write_folders
 from vpr_jax.data import images
 from vpr_jax.errors import UserError
 
@@ -18,36 +18,38 @@ def _sweep(root, tmp_path):
 
 
 def test_a_symbolic_link_loop_among_the_frames_is_one_line(tmp_path):
-    root = _folders(tmp_path / "data")
+    root = write_folders(tmp_path / "data")
     loop = root / "summer" / "frame_0004.png"
     loop.unlink()
     os.symlink("frame_0004.png", loop)  # points at itself
-    _refused(_sweep(root, tmp_path), str(loop), "loops", "fix the link or remove it")
+    assert_one_line_error(_sweep(root, tmp_path), str(loop), "loops", "fix the link or remove it")
     assert not (tmp_path / "runs").exists()
 
 
 def test_a_link_to_a_deleted_frame_is_one_line(tmp_path):
-    root = _folders(tmp_path / "data")
+    root = write_folders(tmp_path / "data")
     frame = root / "winter" / "frame_0009.png"
     frame.rename(tmp_path / "elsewhere.png")
     os.symlink(tmp_path / "elsewhere.png", frame)
     (tmp_path / "elsewhere.png").unlink()
-    _refused(_sweep(root, tmp_path), str(frame), "missing file")
+    assert_one_line_error(_sweep(root, tmp_path), str(frame), "missing file")
     assert not (tmp_path / "runs").exists()
 
 
 def test_a_frame_the_user_may_not_read_is_one_line(tmp_path):
-    root = _folders(tmp_path / "data")
+    root = write_folders(tmp_path / "data")
     secret = root / "summer" / "frame_0011.png"
     secret.chmod(0)
     if os.access(secret, os.R_OK):  # root (or CAP_DAC_OVERRIDE) reads it anyway
         pytest.skip("this user may read files without read permission")
-    _refused(_sweep(root, tmp_path), str(secret), "Permission denied", "you may read it")
+    assert_one_line_error(
+        _sweep(root, tmp_path), str(secret), "Permission denied", "you may read it"
+    )
     assert not (tmp_path / "runs").exists()
 
 
 def test_a_frame_deleted_after_listing_is_one_line(tmp_path):
-    root = _folders(tmp_path / "data", n=3)
+    root = write_folders(tmp_path / "data", n=3)
     paths = sorted((root / "summer").iterdir())  # the listing
     paths[1].unlink()  # gone before it is read
     with pytest.raises(UserError) as err:

@@ -16,7 +16,6 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from vpr_jax.errors import UserError
-from vpr_jax.metrics import PR_CONVENTIONS
 from vpr_jax.shapes import IMAGE_SHAPE, MAX_PIXELS
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
@@ -33,6 +32,10 @@ ICA_FUNS = ("logcosh", "exp", "cube")
 OBJECTIVES = ("reconstruct", "cross_season")  # what the auto-encoders learn to output
 OPTIMIZERS = ("adam", "adamw", "sgd")
 PREPROCESSES = ("none", "patchnorm")
+# How PR recall counts (vpr_jax.evaluation.metrics, which config does not import).
+PR_CONVENTIONS = ("vpr_bench", "has_match", "vpr_tutorial")
+# train.* keys that say where and how often models are saved, not what is trained.
+TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
 
 
 def _check(ok: bool, message: str) -> None:
@@ -117,6 +120,12 @@ class DataConfig:
             f"data.radius_m={self.radius_m} must be positive: a "
             "database image within that many metres of a query is correct, e.g. 25",
         )
+        self._check_frames()
+        if self.train_source is not None:
+            self._check_train_source()
+
+    def _check_frames(self) -> None:
+        """frame_range and frame_list: Nordland sources only, a range is [first, last]."""
         if self.frame_range is not None:
             _as_tuple(self, "frame_range")
             _check(
@@ -124,29 +133,6 @@ class DataConfig:
                 f"data.frame_range={list(self.frame_range)} is not [first, last]: e.g. "
                 "data.frame_range=[202,35582]",
             )
-        if self.train_source is not None:
-            _check(
-                self.source in BENCHMARK_SOURCES,
-                f"data.train_source applies to "
-                f"benchmarks ({', '.join(BENCHMARK_SOURCES)}): data.source={self.source} "
-                "trains on its own route; drop data.train_source",
-            )
-            _check(
-                self.train_source in ROUTE_SOURCES,
-                f"data.train_source={self.train_source} "
-                f"is not an aligned route: use one of {', '.join(ROUTE_SOURCES)}",
-            )
-            _check(
-                self.train_source == "synthetic" or self.train_root is not None,
-                f"data.train_source={self.train_source} needs data.train_root=PATH",
-            )
-            _check(
-                len(self.seasons) == 2,
-                f"data.train_source reads the two seasons to learn "
-                f"from, data.seasons={list(self.seasons)}: name two, e.g. "
-                "data.seasons=[summer,winter]",
-            )
-
         framed = ("nordland_images", "nordland_videos", "folders", "nordland_star")
         for key in ("frame_list", "frame_range"):
             _check(
@@ -154,6 +140,30 @@ class DataConfig:
                 f"data.{key} applies to Nordland sources only: drop it for "
                 f"data.source={self.source}",
             )
+
+    def _check_train_source(self) -> None:
+        """A benchmark's aligned training route: a route source, its root, two seasons."""
+        _check(
+            self.source in BENCHMARK_SOURCES,
+            f"data.train_source applies to "
+            f"benchmarks ({', '.join(BENCHMARK_SOURCES)}): data.source={self.source} "
+            "trains on its own route; drop data.train_source",
+        )
+        _check(
+            self.train_source in ROUTE_SOURCES,
+            f"data.train_source={self.train_source} "
+            f"is not an aligned route: use one of {', '.join(ROUTE_SOURCES)}",
+        )
+        _check(
+            self.train_source == "synthetic" or self.train_root is not None,
+            f"data.train_source={self.train_source} needs data.train_root=PATH",
+        )
+        _check(
+            len(self.seasons) == 2,
+            f"data.train_source reads the two seasons to learn "
+            f"from, data.seasons={list(self.seasons)}: name two, e.g. "
+            "data.seasons=[summer,winter]",
+        )
 
     @property
     def aligned_training(self) -> bool:
@@ -421,7 +431,7 @@ class MeshConfig:
 class PatchNormConfig:
     """``preprocess=patchnorm``: each image's non-overlapping size x size patches are
     z-scored (openSeqSLAM's patch normalisation), then mapped into [0, 1] (see
-    ``vpr_jax.preprocess``), for every method's training, database and query images."""
+    ``vpr_jax.data.preprocess``), for every method's training, database and query images."""
 
     size: int = 8  # patch side in pixels; must divide the 32x64 images
     rounded: bool = False  # openSeqSLAM's integer variant: grey level 127 + round(z)
@@ -438,7 +448,7 @@ class PatchNormConfig:
 
 @dataclass(frozen=True)
 class BootstrapConfig:
-    """95% intervals of each cell's recall@1 and AUC-PR (``vpr_jax.bootstrap``)."""
+    """95% intervals of each cell's recall@1 and AUC-PR (``vpr_jax.evaluation.bootstrap``)."""
 
     resamples: int = 1000  # block-bootstrap resamples of the queries (seeded by ``seed``)
     block_length: int = 10  # consecutive queries per block (at least ds for sequences)
@@ -450,7 +460,7 @@ class BootstrapConfig:
 
 @dataclass(frozen=True)
 class SequenceConfig:
-    """Sequence matching (``vpr_jax.sequence``, SeqSLAM) on top of every method's
+    """Sequence matching (``vpr_jax.evaluation.sequence``, SeqSLAM) on top of every method's
     descriptors; ``ds`` is a sweep axis, ds = 1 being single-image matching."""
 
     enabled: bool = False
@@ -579,10 +589,6 @@ _LIST_KEYS = (
 )
 
 
-# Keys that moved: an old command line gets the new name instead of "unknown key".
-MOVED_KEYS = {"train.val_fraction": "split.val_fraction"}
-
-
 def _normalise_cli(argv: list[str]) -> list[str]:
     """Accept ``methods=raw,pca`` as well as ``methods=[raw,pca]`` and a list of pairs."""
     out = []
@@ -590,11 +596,6 @@ def _normalise_cli(argv: list[str]) -> list[str]:
         key, sep, value = arg.partition("=")
         if not sep:
             raise UserError(f"argument {arg!r} is not key=value: write e.g. season_pairs=all")
-        if key in MOVED_KEYS:
-            raise UserError(
-                f"{key} moved to {MOVED_KEYS[key]}: write {MOVED_KEYS[key]}={value}"
-                " (one validation stretch serves early stopping and selection)"
-            )
         if key in _LIST_KEYS and value and not value.startswith("["):
             value = f"[{value}]"
         if key == "season_pairs" and value.startswith("["):
@@ -666,6 +667,14 @@ def without_aligned_learning(cfg: SweepConfig, asked: set[str]) -> SweepConfig:
         f"training places, which {source} does not have: {fix}",
     )
     return dataclasses.replace(cfg, **changes)
+
+
+def training_identity(settings: TrainConfig) -> dict:
+    """The training settings that determine a trained model's weights (not where or how often
+    it is saved)."""
+    return {
+        k: v for k, v in plain(dataclasses.asdict(settings)).items() if k not in TRAIN_BOOKKEEPING
+    }
 
 
 def to_dict(cfg: SweepConfig) -> dict:

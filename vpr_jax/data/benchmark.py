@@ -1,5 +1,5 @@
 """The in-memory form of a benchmark that is not frame-aligned: a database, queries and
-each query's correct database images as sets (``vpr_jax.ground_truth.MatchSets``).
+each query's correct database images as sets (``vpr_jax.data.ground_truth.MatchSets``).
 
 Sources that produce one: ``vpr_bench`` (VPR-Bench's ``ref/``, ``query/`` and
 ``ground_truth_new.npy``, ``vpr_jax.data.vpr_bench``), ``positions`` (GPS-tagged database and
@@ -13,8 +13,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from vpr_jax.data.ground_truth import MatchSets, Tolerance
 from vpr_jax.data.route import Route
-from vpr_jax.ground_truth import MatchSets, Tolerance
 
 # The one pair each benchmark source has: (database side, query side).
 BENCHMARK_PAIRS = {
@@ -56,12 +56,12 @@ def star_partition(route: Route, db: str = "winter", query: str = "summer") -> B
     picks = np.arange(0, n, STAR_QUERY_STEP)
     truth = Tolerance.of(picks, np.arange(n), STAR_TOLERANCE).sets()
     return Benchmark(
-        "nordland_star",
-        db,
-        query,
-        route.images[db],
-        route.images[query][picks],
-        truth._replace(source=f"+-{STAR_TOLERANCE} frame (Nordland*)"),
-        route.frame_ids,
-        route.frame_ids[picks],
+        source="nordland_star",
+        db_name=db,
+        query_name=query,
+        db=route.images[db],
+        query=route.images[query][picks],
+        truth=truth._replace(source=f"+-{STAR_TOLERANCE} frame (Nordland*)"),
+        db_ids=route.frame_ids,
+        query_ids=route.frame_ids[picks],
     )

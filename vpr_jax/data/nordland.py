@@ -26,7 +26,6 @@ import json
 import math
 import os
 import re
-import tempfile
 import time
 import zipfile
 from collections.abc import Callable, Iterator, Sequence
@@ -47,6 +46,7 @@ from vpr_jax.data.images import (
 )
 from vpr_jax.data.route import IMAGE_SHAPE, Route
 from vpr_jax.errors import UserError
+from vpr_jax.files import atomic_open
 from vpr_jax.progress import Log, interactive, track
 from vpr_jax.shapes import MAX_PIXELS
 
@@ -422,19 +422,8 @@ def _cache_path(video: Path, cache_dir: Path) -> Path:
 
 
 def _write_cache(path: Path, frames: np.ndarray, ids: np.ndarray) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, frames=frames, frame_ids=ids)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_open(path, "wb") as f:
+        np.savez(f, frames=frames, frame_ids=ids)
 
 
 def _load_cache(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -479,10 +468,8 @@ def _grabbed(cap: cv2.VideoCapture) -> Iterator[int]:
         k += 1
 
 
-def _decode_video(
-    video: Path, season: str, log: Log, max_pixels: int = MAX_PIXELS
-) -> tuple[np.ndarray, np.ndarray]:
-    """Sample one frame per second of video time: (frames (N, 32, 64) uint8, ids 0..N-1)."""
+def _open_video(video: Path, max_pixels: int) -> tuple[cv2.VideoCapture, float, int | None]:
+    """The opened video, its frame rate (0: unknown) and its frame count (None: unknown)."""
     cap = cv2.VideoCapture(str(video))
     try:
         if not cap.isOpened():
@@ -493,39 +480,54 @@ def _decode_video(
         width, height = cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)
         if math.isfinite(width) and math.isfinite(height):
             check_pixels(f"a frame of video {video}", int(width), int(height), max_pixels)
-        fps = cap.get(cv2.CAP_PROP_FPS)
-        fps = fps if math.isfinite(fps) and fps > 0 else 0.0
-        count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
-        total = int(count) if math.isfinite(count) and count > 0 else None
+    except BaseException:
+        cap.release()
+        raise
+    fps = cap.get(cv2.CAP_PROP_FPS)
+    count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+    fps = fps if math.isfinite(fps) and fps > 0 else 0.0
+    return cap, fps, int(count) if math.isfinite(count) and count > 0 else None
 
-        frames: list[np.ndarray] = []
-        next_second = 0  # the frame id (= second of video time) still to fill
-        by_stream = True  # trust CAP_PROP_POS_MSEC until it stops increasing
-        prev_ms = -math.inf
-        seconds = None
-        n_decoded = 0
-        next_log = LOG_EVERY_VIDEO_S
-        quiet = interactive()
-        for k in track(_grabbed(cap), f"decoding {season} video", total=total):
+
+def _timestamps(
+    cap: cv2.VideoCapture, video: Path, season: str, fps: float, log: Log
+) -> Iterator[tuple[int, float]]:
+    """(frame number, seconds of video time) of every frame grabbed: the stream's own
+    timestamps while they increase, frame number / fps from the first one that does not."""
+    by_stream, prev_ms = True, -math.inf
+    for k in _grabbed(cap):
+        if by_stream:
+            ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+            if math.isfinite(ms) and ms >= 0 and (ms > prev_ms or (k == 0 and ms == 0)):
+                prev_ms = ms
+                yield k, ms / 1000.0
+                continue
+            by_stream = False
+            if fps == 0:
+                raise UserError(
+                    f"video {video} has neither usable timestamps nor a frame rate: "
+                    f"re-encode it, e.g. ffmpeg -i IN -c:v libx264 -r 25 OUT.mp4"
+                )
+            log(
+                f"{season}: {video.name} has no usable timestamps from frame {k} on: "
+                f"timing frames as frame number / {fps:g} fps"
+            )
+        yield k, k / fps
+
+
+def _decode_video(
+    video: Path, season: str, log: Log, max_pixels: int = MAX_PIXELS
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sample one frame per second of video time: (frames (N, 32, 64) uint8, ids 0..N-1)."""
+    cap, fps, total = _open_video(video, max_pixels)
+    frames: list[np.ndarray] = []
+    next_second = 0  # the frame id (= second of video time) still to fill
+    n_decoded, seconds = 0, 0.0
+    next_log, quiet = LOG_EVERY_VIDEO_S, interactive()
+    try:
+        timed = _timestamps(cap, video, season, fps, log)
+        for k, seconds in track(timed, f"decoding {season} video", total=total):
             n_decoded = k + 1
-            if by_stream:
-                ms = cap.get(cv2.CAP_PROP_POS_MSEC)
-                if math.isfinite(ms) and ms >= 0 and (ms > prev_ms or (k == 0 and ms == 0)):
-                    prev_ms = ms
-                    seconds = ms / 1000.0
-                else:
-                    by_stream = False
-                    if fps == 0:
-                        raise UserError(
-                            f"video {video} has neither usable timestamps nor a frame rate: "
-                            f"re-encode it, e.g. ffmpeg -i IN -c:v libx264 -r 25 OUT.mp4"
-                        )
-                    log(
-                        f"{season}: {video.name} has no usable timestamps from frame {k} on: "
-                        f"timing frames as frame number / {fps:g} fps"
-                    )
-            if not by_stream:
-                seconds = k / fps
             if seconds + _TIME_EPS_S < next_second:
                 continue
             ok, img = cap.retrieve()
@@ -544,7 +546,6 @@ def _decode_video(
                 next_log += LOG_EVERY_VIDEO_S
     finally:
         cap.release()
-
     if n_decoded == 0:
         raise UserError(
             f"video {video} holds no frame OpenCV can decode: re-download or re-encode it"

@@ -3,7 +3,7 @@ them): ``ROOT/database/`` and ``ROOT/queries/`` images, with ``ROOT/database.csv
 ``ROOT/queries.csv`` giving each image's position, ``name,x,y`` in metres (e.g. UTM easting
 and northing). A query's correct database images are those within ``data.radius_m``
 (default 25 m, the Pittsburgh convention), found by a grid search
-(``vpr_jax.ground_truth.within_radius``), never a dense distance matrix.
+(``vpr_jax.data.ground_truth.within_radius``), never a dense distance matrix.
 
 Images are taken in file-name order; every image needs a row in its CSV (rows for files that
 are not there are ignored and counted).
@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from vpr_jax.data.benchmark import Benchmark
+from vpr_jax.data.ground_truth import within_radius
 from vpr_jax.data.images import list_images, note_colour, read_images
 from vpr_jax.errors import UserError
-from vpr_jax.ground_truth import within_radius
 from vpr_jax.progress import Log
 from vpr_jax.shapes import MAX_PIXELS
 
@@ -65,14 +65,14 @@ def read_positions(
         f"queries ({unmatched:,} with no database image within {radius_m:g} m) from {root}"
     )
     return Benchmark(
-        "positions",
-        "database",
-        "queries",
-        images["database"],
-        images["queries"],
-        truth,
-        np.arange(len(paths["database"])),
-        np.arange(len(paths["queries"])),
+        source="positions",
+        db_name="database",
+        query_name="queries",
+        db=images["database"],
+        query=images["queries"],
+        truth=truth,
+        db_ids=np.arange(len(paths["database"])),
+        query_ids=np.arange(len(paths["queries"])),
     )
 
 

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from vpr_jax.data.benchmark import Benchmark
+from vpr_jax.data.ground_truth import match_sets
 from vpr_jax.data.images import list_images, note_colour, read_images
 from vpr_jax.errors import UserError
-from vpr_jax.ground_truth import match_sets
 from vpr_jax.progress import Log
 from vpr_jax.shapes import MAX_PIXELS
 
@@ -54,7 +54,14 @@ def read_vpr_bench(
         f"({unmatched:,} without a correct reference) from {root}"
     )
     return Benchmark(
-        "vpr_bench", "ref", "query", db, query, truth, np.arange(len(refs)), np.arange(len(queries))
+        source="vpr_bench",
+        db_name="ref",
+        query_name="query",
+        db=db,
+        query=query,
+        truth=truth,
+        db_ids=np.arange(len(refs)),
+        query_ids=np.arange(len(queries)),
     )
 
 

@@ -172,12 +172,11 @@ def spec_to_json(spec: Spec) -> dict:
 
 
 def spec_from_json(data: dict) -> Spec:
-    """The spec ``spec_to_json`` wrote, also from checkpoints older than a field (an FAE
-    saved before it centred its input has no ``centre``: it was the seed's plain layer)."""
+    """The spec ``spec_to_json`` wrote."""
     fields = dict(data)
     kind = fields.pop("kind", None)
     if kind == "FAESpec":
-        return FAESpec(**{"centre": 0.0, **fields})
+        return FAESpec(**fields)
     if kind == "CAESpec":
         return CAESpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
     raise ValueError(f"unknown auto-encoder kind {kind!r}: expected FAESpec or CAESpec")

@@ -254,16 +254,7 @@ def fit_ica(
     ``n_components="all"`` keeps every component the data allow after removing
     ``removed_pcs`` (the seed's "all ICs, no dimension reduction").
     """
-    if fun not in FUNS:
-        raise ValueError(f"unknown ICA contrast fun={fun!r}: use one of {', '.join(FUNS)}")
-    if fun == "logcosh" and not 1.0 <= alpha <= 2.0:
-        raise ValueError(f"ica.alpha={alpha} must lie in [1, 2] (logcosh)")
-    if max_iter < 1 or tol <= 0:
-        raise ValueError(f"need max_iter >= 1 and tol > 0, got {max_iter} and {tol}")
-    if n_init < 1 or (w_init is not None and n_init != 1):
-        raise ValueError(f"n_init={n_init}: use n_init >= 1, and n_init=1 with w_init")
-    if (key is None) == (w_init is None):
-        raise ValueError("pass exactly one of key (random initial W) and w_init")
+    _check_settings(fun, alpha, max_iter, tol, n_init, key, w_init)
 
     x = pca.flatten(jnp.asarray(train, jnp.float32))
     n = x.shape[0]
@@ -279,21 +270,45 @@ def fit_ica(
             raise ValueError(f"w_init has shape {inits.shape[1:]}, expected {(c, c)}")
     else:
         inits = jax.vmap(lambda k: jax.random.normal(k, (c, c)))(jax.random.split(key, n_init))
+    w, n_iter, change = _best_of_inits(z, inits, fun, alpha, max_iter, tol)
+    return _canonical(
+        ICAState(
+            mean=pca_state.mean,
+            whitening=k_white,
+            unmixing=w,
+            n_iter=n_iter,
+            converged=change < tol,
+        )
+    )
+
+
+def _check_settings(fun, alpha, max_iter, tol, n_init, key, w_init) -> None:
+    if fun not in FUNS:
+        raise ValueError(f"unknown ICA contrast fun={fun!r}: use one of {', '.join(FUNS)}")
+    if fun == "logcosh" and not 1.0 <= alpha <= 2.0:
+        raise ValueError(f"ica.alpha={alpha} must lie in [1, 2] (logcosh)")
+    if max_iter < 1 or tol <= 0:
+        raise ValueError(f"need max_iter >= 1 and tol > 0, got {max_iter} and {tol}")
+    if n_init < 1 or (w_init is not None and n_init != 1):
+        raise ValueError(f"n_init={n_init}: use n_init >= 1, and n_init=1 with w_init")
+    if (key is None) == (w_init is None):
+        raise ValueError("pass exactly one of key (random initial W) and w_init")
+
+
+def _best_of_inits(z, inits, fun: Fun, alpha: float, max_iter: int, tol: float):
+    """(W, iterations, last change) of FastICA from each initial W of ``inits`` (vmapped
+    when there are several), the one with the largest negentropy."""
     with _one_blas_thread():
-        if n_init == 1:
-            w, n_iter, change = jax.block_until_ready(
-                fastica(z, inits[0], fun, alpha, max_iter, tol)
+        if len(inits) == 1:
+            return jax.block_until_ready(fastica(z, inits[0], fun, alpha, max_iter, tol))
+        ws, iters, changes = jax.block_until_ready(
+            jax.vmap(fastica, in_axes=(None, 0, None, None, None, None))(
+                z, inits, fun, alpha, max_iter, tol
             )
-        else:
-            ws, iters, changes = jax.block_until_ready(
-                jax.vmap(fastica, in_axes=(None, 0, None, None, None, None))(
-                    z, inits, fun, alpha, max_iter, tol
-                )
-            )
-            scores = jax.vmap(negentropy, in_axes=(0, None, None, None))(ws, z, fun, alpha)
-            best = jnp.argmax(scores)
-            w, n_iter, change = ws[best], iters[best], changes[best]
-    return _canonical(ICAState(pca_state.mean, k_white, w, n_iter, change < tol))
+        )
+        scores = jax.vmap(negentropy, in_axes=(0, None, None, None))(ws, z, fun, alpha)
+        best = jnp.argmax(scores)
+        return ws[best], iters[best], changes[best]
 
 
 @jax.jit

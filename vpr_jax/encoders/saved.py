@@ -6,8 +6,8 @@ from pathlib import Path
 
 import jax
 
-from vpr_jax import checkpoints
 from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.encoders import checkpoints
 from vpr_jax.errors import UserError
 
 

@@ -6,7 +6,7 @@ and takes one optimizer step on the mean squared error.
 
 ``fit_autoencoder`` is a short loop over named steps on one ``TrainState``:
 ``init_or_restore`` (a fresh state, or the checkpoint's), then per epoch ``train_epoch``
-(a shuffled pass over the training set), ``evaluate`` (the validation loss) and
+(a shuffled pass over the training set), ``validation_loss`` and
 ``end_epoch`` (keep the best parameters; stop after ``patience`` epochs without
 improvement), and a checkpoint when one is due. Every random draw comes from
 ``(key, epoch, step)``, so a run resumed from an epoch's checkpoint continues exactly as the
@@ -31,11 +31,11 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float
 
-from vpr_jax import checkpoints, sharding
+from vpr_jax import sharding
 from vpr_jax.config import TrainConfig, plain
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
-from vpr_jax.encoders import objectives
+from vpr_jax.encoders import checkpoints, objectives
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Bar
 from vpr_jax.sharding import AXIS
@@ -202,20 +202,26 @@ def make_trainer(
     batch_size = min(per_step, n_train)
     augment = AugmentConfig() if settings.augment else None
     trainer = Trainer(
-        graphdef,
-        objective,
-        make_train_step(graphdef, tx, augment, mesh, objective),
-        make_eval_loss(graphdef, batch_size, objective),
-        ae.make_reconstruct(graphdef),
-        settings,
-        batch_size,
-        n_train // batch_size,
+        graphdef=graphdef,
+        objective=objective,
+        train_step=make_train_step(graphdef, tx, augment, mesh, objective),
+        eval_loss=make_eval_loss(graphdef, batch_size, objective),
+        reconstruct=ae.make_reconstruct(graphdef),
+        settings=settings,
+        batch_size=batch_size,
+        steps_per_epoch=n_train // batch_size,
     )
-    return trainer, TrainState(params, tx.init(params), params, math.inf, 0, 0, 0, 0.0)
-
-
-# Metadata keys added since checkpoints were first written, with what the old ones meant.
-_OLD_META = {"objective": "reconstruct"}
+    fresh = TrainState(
+        params=params,
+        opt_state=tx.init(params),
+        best_params=params,
+        best_val=math.inf,
+        bad_epochs=0,
+        epoch=0,
+        step=0,
+        seconds=0.0,
+    )
+    return trainer, fresh
 
 
 def checkpoint_meta(
@@ -234,31 +240,6 @@ def checkpoint_meta(
     }
 
 
-def _known_spec(data) -> dict | None:
-    try:
-        return ae.spec_to_json(ae.spec_from_json(data))
-    except (TypeError, ValueError):
-        return None  # not a model this version knows: it differs from any spec
-
-
-def _as_of_today(saved, current):
-    """A saved identity read as today's config would write it: keys whose default changed
-    what the suite computes take the value the old runs used (``logdir.CHANGED_DEFAULTS``);
-    other keys added since take today's value (their defaults reproduce the old runs), as
-    a resumed logdir's config does."""
-    from vpr_jax.logdir import with_old_defaults  # the one list of changed defaults
-
-    if not isinstance(saved, dict) or not isinstance(current, dict):
-        return saved
-
-    def fill(old, new):
-        if not isinstance(old, dict) or not isinstance(new, dict):
-            return old
-        return {**new, **{k: fill(v, new.get(k)) for k, v in old.items()}}
-
-    return fill(with_old_defaults(dict(saved)), current)
-
-
 def init_or_restore(
     fresh: TrainState,
     checkpoint_dir: Path | None,
@@ -272,9 +253,6 @@ def init_or_restore(
     if checkpoint_dir is None or not checkpoints.has_checkpoint(checkpoint_dir):
         return fresh, None
     saved = checkpoints.read_meta(checkpoint_dir)
-    # A spec written before a field existed means that field's default (spec_from_json).
-    saved = {**_OLD_META, **saved, "spec": _known_spec(saved.get("spec"))}
-    saved["identity"] = _as_of_today(saved.get("identity"), meta.get("identity"))
     if any(saved.get(k) != v for k, v in meta.items()):
         raise UserError(
             f"{checkpoint_dir} holds a model trained on other data or settings: "
@@ -326,7 +304,7 @@ def train_epoch(
     return state, losses
 
 
-def evaluate(trainer: Trainer, state: TrainState, val_images: np.ndarray) -> float:
+def validation_loss(trainer: Trainer, state: TrainState, val_images: np.ndarray) -> float:
     """The validation loss of the current parameters (what early stopping watches)."""
     return trainer.eval_loss(state.params, val_images)
 
@@ -389,6 +367,22 @@ def _on_devices(train_images: np.ndarray, state: TrainState, mesh: Mesh | None):
     )
 
 
+def save_epoch(
+    checkpoint_dir: Path, state: TrainState, meta: dict, *, done: bool, stopped_early: bool
+) -> None:
+    """Commit the epoch's state, with the model's metadata and a readable summary."""
+    summary = {
+        "epoch": state.epoch,
+        "step": state.step,
+        "best_val_loss": state.best_val,
+        "bad_epochs": state.bad_epochs,
+        "done": done,
+        "stopped_early": stopped_early,
+        "train_seconds": state.seconds,
+    }
+    checkpoints.save(checkpoint_dir, state.epoch, state, {**meta, **summary})
+
+
 def fit_autoencoder(
     spec: ae.Spec,
     train_images: np.ndarray,
@@ -421,17 +415,7 @@ def fit_autoencoder(
     meta = checkpoint_meta(spec, shape, identity, objective)
     state, saved = init_or_restore(fresh, checkpoint_dir, meta, log, name)
     if saved is not None and saved["done"]:
-        return TrainResult(
-            trainer.graphdef,
-            state.best_params,
-            state.epoch,
-            state.step,
-            state.best_val,
-            saved["stopped_early"],
-            True,
-            state.epoch,
-            state.seconds,
-        )
+        return _result(trainer, state, stopped_early=saved["stopped_early"], restored=True)
     resumed_epoch, spent = state.epoch, state.seconds
     check_batch_splits(trainer.batch_size, mesh)
     train_dev, state = _on_devices(train_images, state, mesh)
@@ -440,34 +424,38 @@ def fit_autoencoder(
     stopped_early, last_save = False, time.perf_counter()
     while state.epoch < settings.epochs:
         state, losses = train_epoch(trainer, state, train_dev, key, log, name)
-        val_loss = evaluate(trainer, state, val_images)
+        val_loss = validation_loss(trainer, state, val_images)
         state, stopped_early, done = end_epoch(state, val_loss, settings)
         if log is not None:
             log_epoch(trainer, state, losses, val_loss, val_images, log, name)
         state = state._replace(seconds=spent + time.perf_counter() - start)
         due = time.perf_counter() - last_save >= settings.checkpoint_every_s
         if checkpoint_dir is not None and (due or done):
-            summary = {
-                "epoch": state.epoch,
-                "step": state.step,
-                "best_val_loss": state.best_val,
-                "bad_epochs": state.bad_epochs,
-                "done": done,
-                "stopped_early": stopped_early,
-                "train_seconds": state.seconds,
-            }
-            checkpoints.save(checkpoint_dir, state.epoch, state, {**meta, **summary})
+            save_epoch(checkpoint_dir, state, meta, done=done, stopped_early=stopped_early)
             last_save = time.perf_counter()
         if done:
             break
+    return _result(trainer, state, stopped_early=stopped_early, resumed_epoch=resumed_epoch)
+
+
+def _result(
+    trainer: Trainer,
+    state: TrainState,
+    *,
+    stopped_early: bool,
+    restored: bool = False,
+    resumed_epoch: int | None = None,
+) -> TrainResult:
+    """What training gives back: the best parameters and the counters of ``state``; a
+    restored model resumed after its last epoch."""
     return TrainResult(
-        trainer.graphdef,
-        state.best_params,
-        state.epoch,
-        state.step,
-        state.best_val,
-        stopped_early,
-        False,
-        resumed_epoch,
-        state.seconds,
+        graphdef=trainer.graphdef,
+        params=state.best_params,
+        epochs=state.epoch,
+        steps=state.step,
+        best_val_loss=state.best_val,
+        stopped_early=stopped_early,
+        restored=restored,
+        resumed_epoch=state.epoch if resumed_epoch is None else resumed_epoch,
+        train_seconds=state.seconds,
     )

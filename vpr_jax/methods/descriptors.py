@@ -1,0 +1,158 @@
+"""What a method hands the runner: ``Descriptors`` of a pair's database, queries and
+validation places, and the ``MethodContext`` it may draw on; the shared steps of making
+them (timed fits, warm encoding, the degenerate-descriptor check)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh
+from jaxtyping import Array, Float, Int
+
+from vpr_jax.data.pair import PairData
+from vpr_jax.encoders import pca
+from vpr_jax.encoders.train import TrainingLog
+
+_EPS = 1e-12
+
+
+class PCAFit(NamedTuple):
+    """The pair's PCA fit, shared by its PCA and ICA cells (ICA whitens with it)."""
+
+    state: pca.PCAState
+    seconds: float
+
+
+class Descriptors(NamedTuple):
+    """What one method made of a pair: the descriptors of the database and the queries, for
+    one or more removed-PC counts, and what the fit cost and found."""
+
+    method: str
+    removed_pcs: tuple[int, ...]  # the cells these descriptors serve (0 without the axis)
+    starts: tuple[int, ...]  # per count: cosine on descriptor features [start:]
+    db: jax.Array  # (n_db, d)
+    query: jax.Array  # (n_queries, d)
+    val_db: jax.Array  # (n_val, d): the validation places, database season
+    val_query: jax.Array  # (n_val, d): the validation places, query season
+    fit_seconds: float
+    encode_ms_per_image: float  # warm (compiled) encoding time
+    n_iter: int = 0  # iterations of an iterative fit (0: closed form; epochs when trained)
+    converged: bool = True  # ICA: False when it stopped at ica.max_iter
+    stopped_early: bool = False  # auto-encoders: early stopping ended training before its end
+    basis: tuple[np.ndarray | None, ...] = ()  # per count: (m, 32, 64) images of what the
+    basis_name: str = "removed_components"  # method removed or learned; TensorBoard tag
+    warning: str | None = None  # one line for the run log (non-convergence, degenerate)
+    objective: str = ""  # the auto-encoders' training objective; "" for the other methods
+
+
+class MethodContext(NamedTuple):
+    """What a method may need from the runner besides the pair's images and the config."""
+
+    removed_pcs: tuple[int, ...] = (0,)  # counts still to do (pca, diff_pca, ica)
+    objectives: tuple[str, ...] = ("reconstruct",)  # objectives still to do (fae, cae)
+    pca_fit: PCAFit | None = None  # the pair's PCA fit (pca, ica): see fit_pair_pca
+    checkpoint_dir: Path | None = None  # this pair's model folders go under it
+    training_log: Callable[[str], TrainingLog] | None = None  # method name -> its log
+    identity: dict | None = None  # what besides its spec determines a trained model
+    mesh: Mesh | None = None  # devices to split work over (vpr_jax.sharding); None: one
+
+
+def timed(fn: Callable, *args):
+    start = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    return out, time.perf_counter() - start
+
+
+def _encode(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array, float]:
+    """Database and query descriptors, and the warm encoding time in ms per image."""
+    encode(pair.db)  # compile for this shape
+    db, seconds_db = timed(encode, pair.db)
+    query, seconds_q = timed(encode, pair.query)
+    return db, query, 1000 * (seconds_db + seconds_q) / (len(pair.db) + len(pair.query))
+
+
+def _encode_val(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array]:
+    if pair.aligned_training:  # one call: the shapes the training already compiled for
+        both = encode(pair.val)
+        return both[: len(pair.val_db)], both[len(pair.val_db) :]
+    return encode(pair.val_db), encode(pair.val_query)
+
+
+def degenerate_warning(db, query) -> str | None:
+    """One run-log line when descriptors cannot tell places apart (zero descriptors, or all
+    pointing one way): cosine matching of them is arbitrary, so the cell's metrics mean
+    nothing. None when the descriptors are fine."""
+    zero, parallel = [], []
+    for name, desc in (("database", db), ("query", query)):
+        n_zero, one_way = degenerate_rows(jax.numpy.reshape(desc, (len(desc), -1)))
+        if int(n_zero):
+            zero.append(f"{name} {int(n_zero):,} of {len(desc):,}")
+        if bool(one_way):
+            parallel.append(name)
+    found = [f"zero descriptors ({', '.join(zero)})"] if zero else []
+    if parallel:
+        found.append(f"the nonzero {' and '.join(parallel)} descriptors all point one way")
+    if not found:
+        return None
+    return (
+        f"{' and '.join(found)}: their matches are arbitrary. Check for constant images "
+        "(data.drop_constant_frames=true) or, for an auto-encoder, dead units (another "
+        "seed, train.learning_rate, more epochs)"
+    )
+
+
+def describe(
+    method: str,
+    encode: Callable,
+    pair: PairData,
+    *,
+    removed_pcs=(0,),
+    starts=(0,),
+    basis=(None,),
+    warning: str | None = None,
+    **fit,
+) -> Descriptors:
+    """Encode the pair with ``encode`` and add the degenerate-descriptor check's warning."""
+    db, query, ms = _encode(encode, pair)
+    found = "; ".join(w for w in (warning, degenerate_warning(db, query)) if w) or None
+    val_db, val_query = _encode_val(encode, pair)
+    return Descriptors(
+        method=method,
+        removed_pcs=tuple(removed_pcs),
+        starts=tuple(starts),
+        db=db,
+        query=query,
+        val_db=val_db,
+        val_query=val_query,
+        encode_ms_per_image=ms,
+        basis=tuple(basis),
+        warning=found,
+        **fit,
+    )
+
+
+def as_images(vectors: np.ndarray, pair: PairData) -> np.ndarray:
+    return np.asarray(vectors).reshape(len(vectors), *pair.train.shape[1:])
+
+
+@jax.jit
+def degenerate_rows(desc: Float[Array, "n d"]) -> tuple[Int[Array, ""], Array]:
+    """What makes cosine matching arbitrary: (how many rows are zero, whether all the other
+    rows point the same way).
+
+    A zero row scores 0 against everything (norm at most 1e-6 of the largest row's, or 0);
+    rows that all point one way (pairwise cosine above 1 - 5e-7) score the same against
+    every query. One pass on the device, two scalars to the host.
+    """
+    norms = jnp.sqrt(jnp.sum(desc * desc, axis=1))
+    zero = norms <= jnp.maximum(1e-6 * jnp.max(norms), _EPS)
+    unit = jnp.where(zero[:, None], 0.0, desc / jnp.maximum(norms, _EPS)[:, None])
+    first = unit[jnp.argmin(zero)]  # the first nonzero row (row 0 when all are zero)
+    gap = jnp.sqrt(jnp.sum((unit - first) ** 2, axis=1))  # cosine to it = 1 - gap^2 / 2
+    return jnp.sum(zero), (jnp.max(jnp.where(zero, 0.0, gap)) <= 1e-3) & (jnp.sum(~zero) > 1)

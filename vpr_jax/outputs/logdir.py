@@ -1,0 +1,132 @@
+"""A sweep's log directory: which configurations may share one, and the checks before a run.
+
+A logdir holds the results of one configuration's *identity*: the keys that determine the
+numbers of every cell. Keys that only add cells (pairs, methods, removed-PC counts, sequence
+lengths) or change presentation and where the same numbers are computed may differ between
+runs into the same logdir; any other difference is refused, so a table never mixes
+configurations. No JAX here: these checks run before it loads.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import yaml
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig, plain, to_dict
+from vpr_jax.errors import UserError
+from vpr_jax.files import lock_folder
+from vpr_jax.outputs.results import read_results
+
+# Keys that may differ between runs sharing a logdir: they add cells or change presentation,
+# or where and in what blocks the same numbers are computed (up to float rounding), never
+# the numbers of a cell already written.
+EXTENDABLE_KEYS = (
+    "preset",
+    "season_pairs",
+    "methods",
+    "removed_pcs",
+    "logdir",
+    "tb",
+    "matching",
+    "mesh",
+)
+# Keys inside a group that add cells, like removed_pcs: the ds axis, the auto-encoders'
+# objectives. The groups' other keys change the numbers of their cells.
+AXIS_KEYS = {"sequence": ("enabled", "ds"), "fae": ("objective",), "cae": ("objective",)}
+# The layout of a logdir (config.yaml, results.csv's columns, the runs' files): written as
+# config.yaml's ``format``; a logdir of another format is refused, never read or extended.
+FORMAT = 1
+
+
+def identity(cfg: SweepConfig | dict) -> dict:
+    """The part of a config (or of its saved YAML) that determines the numbers of every cell,
+    as plain YAML data."""
+    out = to_dict(cfg) if isinstance(cfg, SweepConfig) else plain(cfg)
+    out = {k: v for k, v in out.items() if k not in EXTENDABLE_KEYS}
+    out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
+    for key in TRAIN_BOOKKEEPING:
+        out.get("train", {}).pop(key, None)
+    for group, keys in AXIS_KEYS.items():
+        for key in keys:
+            out.get(group, {}).pop(key, None)
+    return out
+
+
+def config_yaml(cfg: SweepConfig) -> str:
+    """config.yaml: the format of the logdir, then the whole config."""
+    return OmegaConf.to_yaml({"format": FORMAT, **to_dict(cfg)})
+
+
+def saved_identity(path: Path) -> dict:
+    """The identity of a logdir's config.yaml; one of another format (or not a sweep config
+    at all) is refused."""
+    try:
+        saved = OmegaConf.load(path)
+    except (OSError, yaml.YAMLError, OmegaConfBaseException) as err:
+        saved = err
+    if not isinstance(saved, DictConfig):
+        raise UserError(
+            f"{path} is not a sweep config ({type(saved).__name__}), so the logdir "
+            "cannot be resumed safely: use a new logdir=PATH"
+        ) from None
+    saved = OmegaConf.to_container(saved)
+    found = saved.pop("format", None)
+    if found != FORMAT:
+        raise UserError(
+            f"logdir {path.parent} was written in another format ({found}; this version "
+            f"writes {FORMAT}): use a new logdir=PATH"
+        )
+    return identity(saved)
+
+
+def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
+    """Refuse unusable or foreign log directories. Creates nothing: the folder is made when
+    the first file is written into it."""
+    existing = next(p for p in (logdir, *logdir.parents) if p.exists())
+    if not existing.is_dir():
+        where = "is a file" if existing == logdir else f"cannot be made: {existing} is a file"
+        raise UserError(f"logdir {logdir} {where}: set logdir=PATH to a folder")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as err:
+        raise UserError(
+            f"logdir {logdir} is not writable ({existing}: {err.strerror}): set "
+            "logdir=PATH to a folder you can write"
+        ) from None
+    saved, results = logdir / "config.yaml", logdir / "results.csv"
+    if saved.exists():
+        now = identity(cfg)
+        before = saved_identity(saved)
+        differ = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
+        if differ:
+            raise UserError(
+                f"logdir {logdir} holds results of a different configuration "
+                f"(differs in {', '.join(differ)}): use a new logdir=PATH, or "
+                "delete that folder to start fresh"
+            )
+    elif results.exists():
+        raise UserError(
+            f"logdir {logdir} has a results.csv but no config.yaml, so it cannot "
+            "be resumed safely: use a new logdir=PATH"
+        )
+    try:
+        read_results(results)
+    except (OSError, ValueError) as err:
+        raise UserError(
+            f"{results} is not a results table this sweep can resume ({err}): "
+            "move it away or use a new logdir=PATH"
+        ) from None
+
+
+def lock_logdir(logdir: Path) -> None:
+    """Make this process the logdir's only writer: an exclusive ``flock`` on
+    ``logdir/.lock``, kept until the process exits (the kernel drops it then, also on
+    SIGKILL, so no stale lock is left). The file says who holds it (pid, host, start time).
+    Raises UserError naming the holder when another sweep has it; nothing is changed then.
+    """
+    lock_folder(logdir, "logdir", "wait for it to finish, or use another logdir=PATH")
