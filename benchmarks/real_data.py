@@ -28,10 +28,10 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from vpr_jax.config import SWEEPS_REMOVED_PCS  # noqa: E402
+from vpr_jax.method_table import NAMES, SWEEPS_REMOVED_PCS  # noqa: E402
 from vpr_jax.outputs.results import read_results, selected_rows  # noqa: E402
 
-ORDER = ("raw", "pca", "diff_pca", "ica", "lda", "fae", "cae")
+ORDER = NAMES  # the method table's order; users' methods after it
 
 
 def sweep_args(args: argparse.Namespace) -> list[str]:

@@ -17,13 +17,14 @@ from pathlib import Path
 import numpy as np
 from jax.sharding import Mesh
 
-from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig
+from vpr_jax.config import SweepConfig
 from vpr_jax.data.ground_truth import Tolerance
 from vpr_jax.data.pair import PairData
 from vpr_jax.evaluation.bootstrap import cell_intervals
 from vpr_jax.evaluation.matching import top_k_matches
 from vpr_jax.evaluation.metrics import Evaluation, evaluate_matches
 from vpr_jax.evaluation.sequence import sequence_top_k_cosine, velocities
+from vpr_jax.method_table import SWEEPS_REMOVED_PCS
 from vpr_jax.methods import Descriptors, model_name
 from vpr_jax.outputs.results import ResultRow, append_results
 from vpr_jax.outputs.tb import match_examples, write_cell_run

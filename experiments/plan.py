@@ -11,12 +11,13 @@ import itertools
 from pathlib import Path
 from typing import NamedTuple
 
-from vpr_jax.config import BENCHMARK_SOURCES, SWEEPS_REMOVED_PCS, SequenceConfig, SweepConfig
+from vpr_jax.config import BENCHMARK_SOURCES, SequenceConfig, SweepConfig
 from vpr_jax.data import SEASON_ORDER, Benchmark, Route, load_data, load_train_route
 from vpr_jax.data.benchmark import BENCHMARK_PAIRS
 from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
+from vpr_jax.method_table import SWEEPS_REMOVED_PCS, MethodInfo, resolve_methods
 from vpr_jax.outputs.logdir import prepare_logdir
 from vpr_jax.progress import Log
 
@@ -30,6 +31,7 @@ class Plan(NamedTuple):
     route: Route | None  # loaded, screened and preprocessed (a benchmark's training route)
     split: Split | None  # of the route
     benchmark: Benchmark | None = None  # data.source is a benchmark: its one pair
+    methods: tuple[MethodInfo, ...] = ()  # cfg.methods as rows of the method table
 
     def describe(self) -> str:
         """What the sweep runs on, for the run log's first line."""
@@ -151,7 +153,8 @@ def make_plan(cfg: SweepConfig, log: Log) -> Plan:
         route = preprocess_route(data, *prep)
         split = make_split(route.frame_ids, cfg.split)
         check_components(cfg, 2 * len(split.train), int(route.images[pairs[0][0]][0].size), log)
-        return Plan(cfg=cfg, logdir=logdir, pairs=pairs, route=route, split=split)
+        methods = resolve_methods(cfg.methods, True, cfg.data.source)
+        return Plan(cfg=cfg, logdir=logdir, pairs=pairs, route=route, split=split, methods=methods)
     bench = preprocess_benchmark(data, *prep)
     if len(bench.query) < 2:
         raise UserError(
@@ -173,4 +176,13 @@ def make_plan(cfg: SweepConfig, log: Log) -> Plan:
         split = make_split(route.frame_ids, cfg.split)
         n_train = 2 * len(split.train)
     check_components(cfg, n_train, int(bench.db[0].size), log)
-    return Plan(cfg=cfg, logdir=logdir, pairs=pairs, route=route, split=split, benchmark=bench)
+    methods = resolve_methods(cfg.methods, route is not None, cfg.data.source)
+    return Plan(
+        cfg=cfg,
+        logdir=logdir,
+        pairs=pairs,
+        route=route,
+        split=split,
+        benchmark=bench,
+        methods=methods,
+    )

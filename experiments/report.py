@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from experiments.cells import INCOMPLETE, block_length
-from vpr_jax.config import SWEEPS_REMOVED_PCS, SweepConfig
+from vpr_jax.config import SweepConfig
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
+from vpr_jax.method_table import SWEEPS_REMOVED_PCS
 from vpr_jax.methods import model_name
 from vpr_jax.outputs.plots import correct_matches_figure, pr_curves_figure, recall_vs_ds_figure
 from vpr_jax.outputs.results import (

@@ -19,21 +19,15 @@ from jax.sharding import Mesh
 from experiments.cells import INCOMPLETE, log_cell, match, save_cell
 from experiments.plan import Plan
 from experiments.report import SUMMARY, write_report
-from vpr_jax.config import SWEEPS_REMOVED_PCS, MeshConfig, SweepConfig
+from vpr_jax.config import MeshConfig, SweepConfig
 from vpr_jax.data.pair import PairData, benchmark_pair, pair_data
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import check_batch_splits
 from vpr_jax.errors import UserError
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
-from vpr_jax.methods import (
-    AUTOENCODERS,
-    METHODS,
-    USES_PCA_FIT,
-    Descriptors,
-    MethodContext,
-    fit_pair_pca,
-)
+from vpr_jax.method_table import MethodInfo, describe_function
+from vpr_jax.methods import Descriptors, MethodContext, fit_pair_pca
 from vpr_jax.outputs.logdir import config_yaml, identity, lock_logdir
 from vpr_jax.outputs.results import (
     TIMING_NAMES,
@@ -47,10 +41,10 @@ from vpr_jax.progress import Bar, Log, RunLog
 from vpr_jax.sharding import make_mesh, mesh_size
 
 
-def objectives_of(method: str, cfg: SweepConfig) -> tuple[str, ...]:
+def objectives_of(method: MethodInfo, cfg: SweepConfig) -> tuple[str, ...]:
     """The auto-encoders' objective axis (``fae.objective``, ``cae.objective``); one empty
     objective for the other methods."""
-    return tuple(getattr(cfg, method).objective) if method in AUTOENCODERS else ("",)
+    return tuple(getattr(cfg, method.name).objective) if method.trained else ("",)
 
 
 def start_devices(cfg: MeshConfig, log: Log) -> Mesh | None:
@@ -100,7 +94,7 @@ def run_cells(plan: Plan, log: RunLog) -> Path:
     writing each one's run and results.csv row as it ends."""
     cfg = plan.cfg
     mesh = start_devices(cfg.mesh, log)
-    trained = [o for m in AUTOENCODERS & set(cfg.methods) for o in objectives_of(m, cfg)]
+    trained = [o for m in plan.methods if m.trained for o in objectives_of(m, cfg)]
     if trained:  # before anything is written, not mid-sweep
         check_batch_splits(
             cfg.train.batch_size, mesh, max(objectives.examples_per_image(o) for o in trained)
@@ -130,11 +124,11 @@ def _cells_to_do(plan: Plan, log: Log) -> tuple[list[CellKey], set[CellKey]]:
     cfg = plan.cfg
     done = {cell_key(r) for r in read_results(plan.logdir / "results.csv")}
     cells = [
-        CellKey(season_pair=f"{a}-{b}", method=m, objective=o, removed_pcs=k, ds=ds)
+        CellKey(season_pair=f"{a}-{b}", method=m.name, objective=o, removed_pcs=k, ds=ds)
         for a, b in plan.pairs
-        for m in cfg.methods
+        for m in plan.methods
         for o in objectives_of(m, cfg)
-        for k in (cfg.removed_pcs if m in SWEEPS_REMOVED_PCS else (0,))
+        for k in (cfg.removed_pcs if m.sweeps_removed_pcs else (0,))
         for ds in cfg.sequence_lengths
     ]
     todo = {c for c in cells if c not in done}
@@ -158,7 +152,7 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
         out,
         {
             "season_pair": [f"{a}-{b}" for a, b in plan.pairs],
-            "method": list(cfg.methods),
+            "method": [m.name for m in plan.methods],
             "objective": [c.objective for c in cells],
             "removed_pcs": [float(c.removed_pcs) for c in cells],
             "ds": [float(c.ds) for c in cells],
@@ -170,19 +164,19 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
         for db, query in plan.pairs:
             pair = f"{db}-{query}"
             data, ctx = None, method_context(cfg, logdir, out, pair, log, mesh)
-            for method in cfg.methods:
+            for method in plan.methods:
                 # Objectives and counts with any cell still to do: their descriptors are
                 # computed again.
                 left = [
                     (c.objective, c.removed_pcs)
                     for c in todo
-                    if (c.season_pair, c.method) == (pair, method)
+                    if (c.season_pair, c.method) == (pair, method.name)
                 ]
                 if not left:
                     continue
                 if data is None:  # built on first use
                     data = _pair(plan, db, query)
-                if method in USES_PCA_FIT and ctx.pca_fit is None:  # one fit per pair
+                if method.uses_pca_fit and ctx.pca_fit is None:  # one fit per pair
                     ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
                 todo_ctx = ctx._replace(
                     objectives=tuple(
@@ -190,7 +184,7 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                     ),
                     removed_pcs=tuple(sorted({k for _, k in left})),
                 )
-                for desc in METHODS[method](data, cfg, todo_ctx):
+                for desc in describe_function(method)(data, cfg, todo_ctx):
                     for row, warning in _save_descriptors(out, cfg, data, desc, todo, mesh):
                         finished += 1
                         bar.advance()

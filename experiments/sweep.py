@@ -34,7 +34,13 @@ def run_sweep(cfg: SweepConfig) -> Path:
 
     from experiments.run import run_cells  # JAX, Flax, orbax: once the cheap checks pass
 
-    return run_cells(plan, log)
+    try:
+        return run_cells(plan, log)
+    except UserError as err:
+        log.record(f"error: {err}")
+        if err.detail:  # e.g. the traceback of a user's method: for the run log only
+            log.record(err.detail)
+        raise
 
 
 class Terminated(KeyboardInterrupt):

@@ -166,3 +166,24 @@ def test_records_of_more_than_three_fields_are_built_by_name():
         and node.args
     ]
     assert not positional, f"build these with keywords: {positional}"
+
+
+def test_only_the_method_table_lists_the_methods():
+    """Adding a method is one module and one line in vpr_jax/method_table.py: no other module
+    of vpr_jax/, experiments/ or benchmarks/ keeps a list, tuple, set or dict of two or more
+    method names."""
+    from vpr_jax.method_table import NAMES
+
+    paths = [*REPO.glob("vpr_jax/**/*.py"), *REPO.glob("experiments/**/*.py")]
+    paths += [*REPO.glob("benchmarks/*.py")]
+    lists = []
+    for path in paths:
+        if path.name == "method_table.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            items = getattr(node, "elts", None) or getattr(node, "keys", None) or []
+            if isinstance(node, ast.List | ast.Tuple | ast.Set | ast.Dict):
+                names = {i.value for i in items if isinstance(i, ast.Constant)} & set(NAMES)
+                if len(names) >= 2:
+                    lists.append(f"{path.relative_to(REPO)}:{node.lineno} {sorted(names)}")
+    assert not lists, f"use vpr_jax.method_table instead: {lists}"

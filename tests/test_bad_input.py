@@ -146,6 +146,8 @@ def test_bad_data(case, tmp_path):
     assert _snapshot(logdir) == {"keep.txt": hashlib.sha256(b"mine").hexdigest()}
 
 
+# The smallest route that gets past the data checks to the methods.
+TINY = ["data.n_frames=400", "split.n_train=150", "split.n_test=60", "split.gap=10"]
 CONFIG_CASES = {
     "unknown key": (["method=raw"], ["method"]),
     "frame range for the built-in route": (
@@ -183,6 +185,25 @@ CONFIG_CASES = {
         ["patchnorm.size=5", "2, 4, 8, 16, 32"],
     ),
     "unknown preprocessing": (["preprocess=clahe"], ["preprocess=clahe", "patchnorm"]),
+    "a method that is not module:name": (["methods=[raw,a:b:c]"], ["'a:b:c' is not module:name"]),
+    "your method named like a built-in one": (
+        ["methods=[raw,my.mod:pca]"],
+        ["'pca' has the name of a built-in method", "rename"],
+    ),
+    "two of your methods of one name": (
+        ["methods=[a.b:x,c.d:x]"],
+        ["two of your methods are called 'x'"],
+    ),
+    "settings of a method not in methods": (["plugin.x.alpha=1"], ["plugin.x.*", "methods=[...]"]),
+    "your module does not import": (
+        [*TINY, "methods=[raw,no_such_module:m]"],
+        ["no_such_module does not import", "PYTHONPATH", "python -c 'import no_such_module'"],
+    ),
+    "your module lacks the object": ([*TINY, "methods=[raw,json:nothing]"], ["json", "no nothing"]),
+    "your object lacks fit and encode": (
+        [*TINY, "methods=[raw,json:JSONDecoder]"],
+        ["json:JSONDecoder has no callable fit or encode", "docs/methods.md"],
+    ),
 }
 
 

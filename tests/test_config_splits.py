@@ -176,15 +176,17 @@ def test_a_saved_config_carries_its_format_and_reads_back_as_its_identity(tmp_pa
 
 
 def test_the_config_names_what_the_library_registers():
-    """config.py loads without JAX, so it spells the names of methods, optimizers, ICA
-    contrasts, PR conventions and data sources itself; they must be the library's."""
-    from vpr_jax import config, methods
+    """config.py loads without JAX, so it spells the names of optimizers, ICA contrasts, PR
+    conventions and data sources itself (and reads the methods from the JAX-free method
+    table); they must be the library's."""
+    from vpr_jax import config, method_table
     from vpr_jax.data import nordland
     from vpr_jax.data.benchmark import BENCHMARK_PAIRS
     from vpr_jax.encoders import ica, train
     from vpr_jax.evaluation import metrics
 
-    assert config.METHODS == tuple(methods.METHODS)
+    for info in method_table.BUILTIN:  # each row names a describe function that exists
+        assert callable(method_table.describe_function(info)), info.describe
     assert config.PR_CONVENTIONS == metrics.PR_CONVENTIONS
     assert config.OPTIMIZERS == tuple(train.OPTIMIZERS)
     assert config.ICA_FUNS == ica.FUNS

@@ -75,3 +75,24 @@ def test_the_refusal_catalogue_lists_every_bad_input_case():
     assert not missing, f"docs/refusals.md lacks {missing}"
     for module, name in re.findall(r"`(test_\w+\.py)::(\w+)", catalogue):
         assert f"def {name}(" in (REPO / "tests" / module).read_text(), f"{module}::{name}"
+
+
+def test_the_worked_example_of_your_own_method_runs(tmp_path, monkeypatch):
+    """docs/methods.md's example module, as printed there, fits and encodes (the sweep's own
+    handling of such a method is tests/test_plugins.py's)."""
+    import numpy as np
+
+    text = (REPO / "docs" / "methods.md").read_text()
+    section = text.split("### A worked example", 1)[1]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    (tmp_path / "edges.py").write_text(code)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    from vpr_jax.method_table import load_plugin
+
+    edges = load_plugin("edges:edges")
+    rng = np.random.default_rng(0)
+    train = rng.random((40, 32, 64), dtype=np.float32)
+    state = edges.fit(train, None, None, n_components=16)
+    out = edges.encode(state, train[:5])
+    assert out.shape == (5, 16) and np.isfinite(np.asarray(out)).all()
+    assert "edges:edges" in text  # the command names it as the example defines it

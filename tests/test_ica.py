@@ -247,7 +247,8 @@ def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     from experiments.cells import match
     from vpr_jax.config import parse_config
     from vpr_jax.data.ground_truth import Tolerance
-    from vpr_jax.methods import METHODS, MethodContext, PairData, fit_pair_pca
+    from vpr_jax.methods import MethodContext, PairData, fit_pair_pca
+    from vpr_jax.methods.linear import describe_ica, describe_pca
 
     route = synthetic_route(300, ("summer", "fall"), 0)
     s, f = route.images["summer"], route.images["fall"]
@@ -270,12 +271,12 @@ def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     cfg = parse_config(["ica.n_components=12", "tb.n_basis_images=5"])
     fit = fit_pair_pca(pair, cfg, None)
     ctx = MethodContext(removed_pcs=(0, 4), pca_fit=fit)
-    cells = list(METHODS["ica"](pair, cfg, ctx))
-    (coefficients,) = METHODS["pca"](pair, cfg, ctx)
+    cells = list(describe_ica(pair, cfg, ctx))
+    (coefficients,) = describe_pca(pair, cfg, ctx)
     # PCA and ICA both work from the fit they are handed, not from one of their own.
     np.testing.assert_array_equal(coefficients.query, pca.suffix_descriptors(fit.state, pair.query))
     other = fit_pair_pca(pair._replace(train=pair.train[::-1][:300]), cfg, None)
-    (elsewhere,) = METHODS["ica"](pair, cfg, ctx._replace(removed_pcs=(4,), pca_fit=other))
+    (elsewhere,) = describe_ica(pair, cfg, ctx._replace(removed_pcs=(4,), pca_fit=other))
     assert not np.allclose(elsewhere.query, cells[1].query)
     direct = ica.fit_ica(pair.train, jax.random.key(cfg.seed), n_components=12, removed_pcs=4)
     q = np.asarray(ica.encode(direct, pair.query))

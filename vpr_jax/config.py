@@ -15,6 +15,7 @@ from typing import Any
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from vpr_jax import method_table
 from vpr_jax.errors import UserError
 from vpr_jax.shapes import IMAGE_SHAPE, MAX_PIXELS
 
@@ -23,11 +24,6 @@ ROUTE_SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")  
 # Benchmarks whose database and queries are not frame-aligned (ground truth as sets).
 BENCHMARK_SOURCES = ("vpr_bench", "positions", "nordland_star")
 SOURCES = (*ROUTE_SOURCES, *BENCHMARK_SOURCES)
-# What learns from aligned training places: unaligned benchmarks need data.train_source.
-NEEDS_ALIGNED = ("diff_pca", "lda")
-METHODS = ("raw", "pca", "diff_pca", "ica", "lda", "fae", "cae")
-# Methods whose cells are indexed by a removed-PC count; the others run once with k = 0.
-SWEEPS_REMOVED_PCS = frozenset({"pca", "diff_pca", "ica"})
 ICA_FUNS = ("logcosh", "exp", "cube")
 OBJECTIVES = ("reconstruct", "cross_season")  # what the auto-encoders learn to output
 OPTIMIZERS = ("adam", "adamw", "sgd")
@@ -519,7 +515,8 @@ class SweepConfig:
 
     preset: str = "quick"  # quick | paper: a file under experiments/configs/
     season_pairs: str = "all"  # all, or db-query pairs: summer-fall,spring-fall
-    methods: list[str] = field(default_factory=lambda: list(METHODS))
+    # built-in names (vpr_jax.method_table) and your own as module:name
+    methods: list[str] = field(default_factory=lambda: list(method_table.NAMES))
     removed_pcs: list[int] = field(default_factory=lambda: [0, 5, 10, 20, 50, 100])
     tolerance: int = 2  # a match is correct when |query frame - db frame| <= tolerance
     pr_convention: str = "vpr_bench"  # vpr_bench | has_match | vpr_tutorial: PR recall
@@ -540,19 +537,24 @@ class SweepConfig:
     bootstrap: BootstrapConfig = field(default_factory=BootstrapConfig)
     mesh: MeshConfig = field(default_factory=MeshConfig)
     tb: TensorBoardConfig = field(default_factory=TensorBoardConfig)
+    # Settings of your own methods: plugin.<name>.<key>=<value> reaches its fit as key=value.
+    plugin: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def __post_init__(self):
         _as_tuple(self, "methods")
         _as_tuple(self, "removed_pcs")
         if self.logdir is None:
             object.__setattr__(self, "logdir", f"runs/{self.preset}")
-        unknown = [m for m in self.methods if m not in METHODS]
-        _check(
-            not unknown,
-            f"methods={list(self.methods)} names unknown {unknown}: choose "
-            f"from {', '.join(METHODS)}",
-        )
         _check(len(self.methods) > 0, "methods is empty: e.g. methods=[raw,pca]")
+        problem = method_table.check_methods(self.methods, OBJECTIVES)
+        _check(problem is None, problem or "")
+        plugins = [method_table.plugin_name(m) for m in self.methods if method_table.is_plugin(m)]
+        for name in self.plugin:
+            _check(
+                name in plugins,
+                f"plugin.{name}.* is set but methods names no method {name} (as "
+                f"module:{name}): add it to methods=[...] or drop the setting",
+            )
         negative = [k for k in self.removed_pcs if k < 0]
         _check(
             not negative,
@@ -645,13 +647,13 @@ def without_aligned_learning(cfg: SweepConfig, asked: set[str]) -> SweepConfig:
         "set data.train_source and data.train_root to an aligned route to learn from (e.g. "
         "Nordland's training places), or leave them out"
     )
-    wanted = [m for m in cfg.methods if m in NEEDS_ALIGNED]
+    wanted = [m for m in cfg.methods if m in method_table.NEEDS_ALIGNED]
     _check(
         not (wanted and "methods" in asked),
         f"methods {wanted} learn from aligned training places, which {source} does not have: {fix}",
     )
-    changes = {"methods": tuple(m for m in cfg.methods if m not in NEEDS_ALIGNED)}
-    for model in ("fae", "cae"):
+    changes = {"methods": tuple(m for m in cfg.methods if m not in method_table.NEEDS_ALIGNED)}
+    for model in (m.name for m in method_table.BUILTIN if m.trained):
         objectives = getattr(cfg, model).objective
         if "cross_season" in objectives and model in changes["methods"]:
             _check(

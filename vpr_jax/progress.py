@@ -30,11 +30,15 @@ class RunLog:
 
     def __call__(self, line: str) -> None:
         print(line, flush=True)
+        self.record(line)
+
+    def record(self, text: str) -> None:
+        """Keep ``text`` in the log file only (a traceback the terminal need not show)."""
         if self._path is None:
-            self._lines.append(line)
+            self._lines.append(text)
         else:
             with open(self._path, "a") as f:
-                f.write(line + "\n")
+                f.write(text + "\n")
 
 
 def interactive() -> bool:

@@ -41,6 +41,16 @@ def model_name(method: str, objective: str = "") -> str:
     return method if objective in ("", "reconstruct") else f"{method}_{objective}"
 
 
+def describe_fae(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
+    """The fundamental auto-encoder (one hidden layer): ``describe_autoencoder``."""
+    return describe_autoencoder("fae", pair, cfg, ctx)
+
+
+def describe_cae(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
+    """The convolutional auto-encoder: ``describe_autoencoder``."""
+    return describe_autoencoder("cae", pair, cfg, ctx)
+
+
 def describe_autoencoder(
     method: str, pair: PairData, cfg: SweepConfig, ctx: MethodContext
 ) -> Iterator[Descriptors]:

@@ -45,9 +45,9 @@ def pca_components_needed(cfg: SweepConfig, n_samples: int, n_features: int) -> 
 
 def fit_pair_pca(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> PCAFit:
     """The PCA fit of the pair's training images and its seconds: the leading components the
-    methods in ``USES_PCA_FIT`` need (``pca_components_needed``), by the solver
-    ``pca.solver`` names. The runner fits it once per pair and passes it in their
-    context."""
+    methods with ``uses_pca_fit`` (``vpr_jax.method_table``) need (``pca_components_needed``),
+    by the solver ``pca.solver`` names. The runner fits it once per pair and passes it in
+    their context."""
     n = pca_components_needed(cfg, len(pair.train), pair.train[0].size)
     state, seconds = timed(
         lambda x: pca.fit_pca(x, n, solver=cfg.pca.solver, mesh=mesh, seed=cfg.seed), pair.train

@@ -19,6 +19,7 @@ from omegaconf.errors import OmegaConfBaseException
 from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig, plain, to_dict
 from vpr_jax.errors import UserError
 from vpr_jax.files import lock_folder
+from vpr_jax.method_table import TRAINED, is_plugin, plugin_name
 from vpr_jax.outputs.results import read_results
 
 # Keys that may differ between runs sharing a logdir: they add cells or change presentation,
@@ -36,7 +37,7 @@ EXTENDABLE_KEYS = (
 )
 # Keys inside a group that add cells, like removed_pcs: the ds axis, the auto-encoders'
 # objectives. The groups' other keys change the numbers of their cells.
-AXIS_KEYS = {"sequence": ("enabled", "ds"), "fae": ("objective",), "cae": ("objective",)}
+AXIS_KEYS = {"sequence": ("enabled", "ds"), **{m: ("objective",) for m in TRAINED}}
 # The layout of a logdir (config.yaml, results.csv's columns, the runs' files): written as
 # config.yaml's ``format``; a logdir of another format is refused, never read or extended.
 FORMAT = 1
@@ -46,7 +47,8 @@ def identity(cfg: SweepConfig | dict) -> dict:
     """The part of a config (or of its saved YAML) that determines the numbers of every cell,
     as plain YAML data."""
     out = to_dict(cfg) if isinstance(cfg, SweepConfig) else plain(cfg)
-    out = {k: v for k, v in out.items() if k not in EXTENDABLE_KEYS}
+    # plugin.<name>.* change only their method's cells: compared per method (plugin_settings)
+    out = {k: v for k, v in out.items() if k not in (*EXTENDABLE_KEYS, "plugin")}
     out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
     for key in TRAIN_BOOKKEEPING:
         out.get("train", {}).pop(key, None)
@@ -61,9 +63,22 @@ def config_yaml(cfg: SweepConfig) -> str:
     return OmegaConf.to_yaml({"format": FORMAT, **to_dict(cfg)})
 
 
+def plugin_settings(cfg: SweepConfig | dict) -> dict[str, dict]:
+    """Per user's method of ``methods``, its ``plugin.<name>.*`` settings ({} when none)."""
+    out = to_dict(cfg) if isinstance(cfg, SweepConfig) else plain(cfg)
+    names = [plugin_name(m) for m in out.get("methods", []) if is_plugin(m)]
+    return {name: out.get("plugin", {}).get(name, {}) for name in names}
+
+
 def saved_identity(path: Path) -> dict:
     """The identity of a logdir's config.yaml; one of another format (or not a sweep config
     at all) is refused."""
+    return identity(saved_config(path))
+
+
+def saved_config(path: Path) -> dict:
+    """A logdir's config.yaml as plain data, without its format; one of another format (or
+    not a sweep config at all) is refused."""
     try:
         saved = OmegaConf.load(path)
     except (OSError, yaml.YAMLError, OmegaConfBaseException) as err:
@@ -80,7 +95,7 @@ def saved_identity(path: Path) -> dict:
             f"logdir {path.parent} was written in another format ({found}; this version "
             f"writes {FORMAT}): use a new logdir=PATH"
         )
-    return identity(saved)
+    return saved
 
 
 def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
@@ -100,9 +115,11 @@ def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
         ) from None
     saved, results = logdir / "config.yaml", logdir / "results.csv"
     if saved.exists():
-        now = identity(cfg)
-        before = saved_identity(saved)
+        now, before_config = identity(cfg), saved_config(saved)
+        before = identity(before_config)
         differ = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
+        mine, theirs = plugin_settings(cfg), plugin_settings(before_config)
+        differ += [f"plugin.{n}" for n in sorted(set(mine) & set(theirs)) if mine[n] != theirs[n]]
         if differ:
             raise UserError(
                 f"logdir {logdir} holds results of a different configuration "

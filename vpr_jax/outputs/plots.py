@@ -14,7 +14,7 @@ matplotlib.use("Agg")  # files only; no display on clusters or CI
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vpr_jax.config import SWEEPS_REMOVED_PCS  # noqa: E402
+from vpr_jax.method_table import SWEEPS_REMOVED_PCS, colour_of  # noqa: E402
 from vpr_jax.outputs.results import ResultRow, selected_rows  # noqa: E402
 
 
@@ -23,10 +23,31 @@ def _variant(row: ResultRow) -> str:
     return f"{row.method} {row.objective}" if row.objective else row.method
 
 
+def _style(row: ResultRow) -> dict:
+    """The method's colour from the method table; a dashed line for an objective other than
+    the seed's (``fae cross_season`` beside ``fae reconstruct``)."""
+    dashed = row.objective not in ("", "reconstruct")
+    return {"color": colour_of(row.method), "linestyle": "--" if dashed else "-"}
+
+
 def _label(row: ResultRow) -> str:
     return (
         f"{row.method} (k={row.removed_pcs})" if row.method in SWEEPS_REMOVED_PCS else _variant(row)
     )
+
+
+def _save(fig, path: Path) -> None:
+    """Write the figure as PNG, its legend entries in the file's Description text (any PNG
+    reader shows which methods a figure holds without looking at it), and close it."""
+    fig.tight_layout()
+    entries = [
+        text.get_text()
+        for ax in fig.axes
+        if ax.get_legend()
+        for text in ax.get_legend().get_texts()
+    ]
+    fig.savefig(path, dpi=120, metadata={"Description": "; ".join(dict.fromkeys(entries))})
+    plt.close(fig)
 
 
 def _shortest_sequences(rows: list[ResultRow]) -> list[ResultRow]:
@@ -43,13 +64,11 @@ def pr_curves_figure(rows: list[ResultRow], load_curve: Callable[[ResultRow], tu
     for ax, pair in zip(axes[0], pairs, strict=True):
         for row in sorted((r for r in best if r.season_pair == pair), key=_variant):
             precision, recall = load_curve(row)
-            ax.plot(recall, precision, label=f"{_label(row)}  AUC {row.auc_pr:.2f}")
+            ax.plot(recall, precision, label=f"{_label(row)}  AUC {row.auc_pr:.2f}", **_style(row))
         ax.set(title=pair, xlabel="recall", ylabel="precision", xlim=(0, 1.01), ylim=(0, 1.02))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def correct_matches_figure(rows: list[ResultRow], path: Path):
@@ -58,20 +77,21 @@ def correct_matches_figure(rows: list[ResultRow], path: Path):
     best = selected_rows(_shortest_sequences(rows))
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
     methods = list(dict.fromkeys(_variant(r) for r in rows))
+    styles = {_variant(r): _style(r) for r in rows}
     width = 0.8 / len(methods)
     fig, ax = plt.subplots(figsize=(3.0 + 0.25 * len(methods) * len(pairs), 3.8))
     for m, method in enumerate(methods):
         by_pair = {r.season_pair: r for r in best if _variant(r) == method}
         x = np.arange(len(pairs)) + (m - (len(methods) - 1) / 2) * width
         heights = [by_pair[p].recall_at_1 if p in by_pair else np.nan for p in pairs]
-        bars = ax.bar(x, heights, width, label=method)
+        dashed = styles[method]["linestyle"] == "--"
+        colour = styles[method]["color"]
+        bars = ax.bar(x, heights, width, label=method, color=colour, hatch="//" if dashed else None)
         ax.bar_label(bars, fmt="%.2f", fontsize=7)
     ax.set_xticks(np.arange(len(pairs)), pairs)
     ax.set(ylabel="fraction of correct matches", ylim=(0, 1.08))
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))  # beside the bars
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
@@ -80,6 +100,7 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
     best = selected_rows(rows)
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
     methods = list(dict.fromkeys(_variant(r) for r in rows))
+    styles = {_variant(r): _style(r) for r in rows}
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
         for method in methods:
@@ -89,7 +110,7 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
                 if r.season_pair == pair and _variant(r) == method
             )
             if points:
-                ax.plot(*zip(*points, strict=True), marker="o", label=method)
+                ax.plot(*zip(*points, strict=True), marker="o", label=method, **styles[method])
         ax.set(
             title=pair,
             xlabel="sequence length ds (frames)",
@@ -99,6 +120,4 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
         )
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)

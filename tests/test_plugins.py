@@ -1,0 +1,180 @@
+"""A user's method (``methods=[...,module:name]``) runs exactly like a built-in one: the same
+rows, runs, summary and figures; its settings reach its fit; whatever goes wrong in its code
+is one line, with the finished cells kept."""
+
+import json
+import os
+import textwrap
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from PIL import Image
+
+from tests.conftest import REPO, assert_one_line_error, read_run, run_cli
+from vpr_jax.config import parse_config
+from vpr_jax.errors import UserError
+from vpr_jax.method_table import METHODS, plugin_info, resolve_methods
+from vpr_jax.methods.plugin import checked_encode
+from vpr_jax.outputs.logdir import config_yaml, prepare_logdir
+from vpr_jax.outputs.results import COLUMNS, read_results
+
+# raw pixels, again: the training mean subtracted, the pixels flattened; its fit writes what
+# it received to the file its ``record`` setting names.
+CENTRED_PIXELS = """
+import json
+
+import jax
+import jax.numpy as jnp
+
+
+class centred_pixels:
+    @staticmethod
+    def fit(train, aligned, key, record, scale=1.0):
+        with open(record, "a") as f:
+            shapes = None if aligned is None else [list(a.shape) for a in aligned]
+            differ = aligned is not None and bool((aligned[0][3] != aligned[1][3]).any())
+            f.write(json.dumps({"train": list(train.shape), "aligned": shapes,
+                                "scale": scale, "key": str(jax.random.key_data(key).dtype),
+                                "seasons_differ": differ}) + "\\n")
+        mean = jnp.mean(jnp.reshape(train, (len(train), -1)), axis=0)
+        return {"mean": mean, "scale": jnp.float32(scale)}
+
+    @staticmethod
+    def encode(state, images):
+        return (jnp.reshape(images, (images.shape[0], -1)) - state["mean"]) * state["scale"]
+"""
+BROKEN_FIT = """
+class centred_pixels:
+    @staticmethod
+    def fit(train, aligned, key, record):
+        raise RuntimeError("deliberately broken")
+
+    @staticmethod
+    def encode(state, images):
+        return images
+"""
+SMALL_ROUTE = [
+    "data.n_frames=400",
+    "split.n_train=150",
+    "split.n_test=60",
+    "split.gap=10",
+    "season_pairs=summer-fall",
+]
+NOT_COMPARED = {"method", "run", "fit_seconds", "encode_ms_per_image"}
+
+
+def _module(folder: Path, name: str, source: str) -> dict:
+    """Write a module of the user's into ``folder``; the environment that imports it."""
+    folder.mkdir(exist_ok=True)
+    (folder / f"{name}.py").write_text(textwrap.dedent(source))
+    return {"PYTHONPATH": os.pathsep.join([str(REPO), str(folder)])}
+
+
+def test_a_method_of_your_own_runs_like_a_built_in_one(tmp_path):
+    env = _module(tmp_path / "mine", "my_methods", CENTRED_PIXELS)
+    record, logdir = tmp_path / "fit.jsonl", tmp_path / "runs"
+    proc = run_cli(
+        *SMALL_ROUTE,
+        "methods=[raw,my_methods:centred_pixels]",
+        f"plugin.centred_pixels.record={record}",
+        "plugin.centred_pixels.scale=3",
+        f"logdir={logdir}",
+        env=env,
+    )
+    assert proc.returncode == 0, proc.stderr
+    rows = {r.method: r for r in read_results(logdir / "results.csv")}
+    assert set(rows) == {"raw", "centred_pixels"}
+    mine, raw = rows["centred_pixels"], rows["raw"]
+    for column in set(COLUMNS) - NOT_COMPARED:  # every metric, interval and setting
+        assert getattr(mine, column) == getattr(raw, column), column
+    assert mine.run == "summer-fall/centred_pixels"
+    assert read_run(logdir / mine.run).Scalars("metrics/recall_at_1")[0].value == pytest.approx(
+        raw.recall_at_1, abs=1e-6
+    )
+    # What the fit received: both seasons' training places, the aligned pair, the settings.
+    (received,) = [json.loads(line) for line in record.read_text().splitlines()]
+    assert received["train"] == [2 * 125, 32, 64]
+    assert received["aligned"] == [[125, 32, 64], [125, 32, 64]]
+    assert received["seasons_differ"] and received["scale"] == 3 and received["key"] == "uint32"
+    # The summary run and every figure show it beside raw.
+    summary = read_run(logdir / "summary" / "summer-fall")
+    for method in ("raw", "centred_pixels"):
+        (point,) = summary.Scalars(f"metrics/recall_at_1/{method}")
+        assert point.value == pytest.approx(raw.recall_at_1, abs=1e-6)
+        assert f"pr_curve/{method}" in summary.Tags()["tensors"]
+    for figure in ("pr_curves.png", "correct_matches.png"):
+        legend = Image.open(logdir / "figures" / figure).text["Description"]
+        assert "centred_pixels" in legend and "raw" in legend, (figure, legend)
+    # A rerun finds every cell done; other settings of the method are another configuration.
+    again = run_cli(*proc.args[3:], env=env)
+    assert "resuming: 2 of 2 cells" in again.stdout and again.returncode == 0
+    other = [a if "scale=" not in a else "plugin.centred_pixels.scale=2" for a in proc.args[3:]]
+    assert_one_line_error(run_cli(*other, env=env), "plugin.centred_pixels", "new logdir")
+
+
+def test_a_method_that_fails_is_one_line_and_the_fixed_method_resumes(tmp_path):
+    env = _module(tmp_path / "mine", "my_methods", BROKEN_FIT)
+    logdir, record = tmp_path / "runs", tmp_path / "fit.jsonl"
+    args = [
+        *SMALL_ROUTE,
+        "methods=[raw,my_methods:centred_pixels]",
+        f"plugin.centred_pixels.record={record}",
+        f"logdir={logdir}",
+    ]
+    line = assert_one_line_error(
+        run_cli(*args, env=env), "method centred_pixels", "fit raised RuntimeError", "sweep.log"
+    )
+    assert [r.method for r in read_results(logdir / "results.csv")] == ["raw"]
+    log = (logdir / "sweep.log").read_text()
+    assert line in log and 'raise RuntimeError("deliberately broken")' in log  # its traceback
+    _module(tmp_path / "mine", "my_methods", CENTRED_PIXELS)
+    fixed = run_cli(*args, env=env)
+    assert fixed.returncode == 0, fixed.stderr
+    assert "resuming: 1 of 2 cells" in fixed.stdout
+    assert [r.method for r in read_results(logdir / "results.csv")] == ["raw", "centred_pixels"]
+
+
+INFO = plugin_info("my_methods:centred_pixels", needs_alignment=False)
+
+
+@pytest.mark.parametrize(
+    ("encode", "words"),
+    [
+        (lambda s, x: jnp.reshape(x, (-1, 64)), ["encode gave shape (64, 64) for 2 images"]),
+        (lambda s, x: jnp.reshape(x, (len(x), -1)) / 0.0 * 0, ["NaN or infinite"]),
+        (lambda s, x: x[:, 0, 0], ["encode gave shape (2,)"]),
+        (lambda s, x: jnp.asarray(x) @ jnp.ones(3), ["encode raised TypeError"]),
+    ],
+)
+def test_what_encode_returns_is_checked(encode, words):
+    with pytest.raises(UserError) as err:
+        checked_encode(INFO, encode)({}, np.ones((2, 32, 64), np.float32))
+    message = str(err.value)
+    assert message.startswith("method centred_pixels (my_methods:centred_pixels): ")
+    assert all(w in message for w in words) and "\n" not in message, message
+    good = checked_encode(INFO, lambda s, x: jnp.reshape(x, (len(x), -1)) * s["w"])
+    assert good({"w": 2.0}, np.ones((3, 32, 64), np.float32)).shape == (3, 2048)
+
+
+def test_a_method_that_needs_alignment_is_refused_without_aligned_places(tmp_path, monkeypatch):
+    _module(tmp_path, "aligned_only", CENTRED_PIXELS + "\ncentred_pixels.needs_alignment = True\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    (info,) = resolve_methods(("aligned_only:centred_pixels",), True, "synthetic")
+    assert info.needs_alignment and info.name == "centred_pixels" and info.colour
+    with pytest.raises(UserError, match="needs_alignment.*data.source=vpr_bench.*train_source"):
+        resolve_methods(("aligned_only:centred_pixels",), False, "vpr_bench")
+    assert resolve_methods(("raw", "lda"), True, "synthetic") == (METHODS["raw"], METHODS["lda"])
+
+
+def test_adding_a_method_of_your_own_extends_a_logdir(tmp_path):
+    logdir = tmp_path / "runs"
+    logdir.mkdir()
+    before = parse_config(["methods=[raw,a.b:first]", "plugin.first.alpha=1", f"logdir={logdir}"])
+    (logdir / "config.yaml").write_text(config_yaml(before))
+    prepare_logdir(logdir, before)
+    added = ["methods=[raw,a.b:first,c.d:second]", "plugin.second.beta=2", f"logdir={logdir}"]
+    prepare_logdir(logdir, parse_config([*added, "plugin.first.alpha=1"]))  # accepted
+    with pytest.raises(UserError, match=r"differs in plugin\.first"):
+        prepare_logdir(logdir, parse_config([*added, "plugin.first.alpha=2"]))
