@@ -4,7 +4,9 @@ run's cells and every earlier one's), so a resumed sweep reports the whole table
 
 from __future__ import annotations
 
+import csv
 import functools
+import io
 import math
 import os
 import shutil
@@ -15,11 +17,13 @@ import numpy as np
 
 from experiments.cells import INCOMPLETE, block_length
 from vpr_jax.config import SweepConfig
+from vpr_jax.encoders.saved import FIT_JSON, describe_encoder, read_description
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
 from vpr_jax.method_table import SWEEPS_REMOVED_PCS
 from vpr_jax.methods import model_name
+from vpr_jax.outputs.logdir import ENCODERS_CSV, LISTING, fitted_root
 from vpr_jax.outputs.plots import correct_matches_figure, pr_curves_figure, recall_vs_ds_figure
 from vpr_jax.outputs.results import (
     ResultRow,
@@ -54,6 +58,53 @@ def write_report(logdir: Path, cfg: SweepConfig) -> None:
     correct_matches_figure(rows, figures / "correct_matches.png")
     if len({r.ds for r in rows}) > 1:
         recall_vs_ds_figure(rows, figures / "recall_vs_ds.png")
+    listing = describe_encoders(fitted_root(cfg, logdir), rows)
+    atomic_write_text(logdir / ENCODERS_CSV, encoders_csv(listing))
+
+
+def encoders_csv(listing: list[dict]) -> str:
+    out = io.StringIO()
+    writer = csv.DictWriter(out, LISTING, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(listing)
+    return out.getvalue()
+
+
+def describe_encoders(root: Path, rows: list[ResultRow]) -> list[dict]:
+    """Each saved encoder's ``encoder.json``, from its ``fit.json`` and the table: the
+    removed-PC count chosen on the validation places among those it serves (single images),
+    with its validation and test recall@1. Rewritten with every report, so a resumed sweep
+    that adds counts moves the choice. Returns the descriptions, each with its folder."""
+    shortest, listing = min(r.ds for r in rows), []
+    if not root.is_dir():
+        return listing
+    for pair in sorted({r.season_pair for r in rows}):
+        for fit_file in sorted((root / pair).glob(f"*/{FIT_JSON}")):
+            fit = read_description(fit_file.parent, FIT_JSON)
+            mine = [
+                r
+                for r in rows
+                if (r.season_pair, r.method, r.objective, r.ds)
+                == (pair, fit["name"], fit["objective"], shortest)
+                and r.removed_pcs in fit["counts"]
+            ]
+            if not mine:
+                continue
+            chosen = max(mine, key=lambda r: (r.selected, r.val_recall_at_1, r.val_auc_pr))
+            by_count = {str(r.removed_pcs): r.val_recall_at_1 for r in mine}
+            description = describe_encoder(
+                fit_file.parent,
+                {
+                    "removed_pcs": chosen.removed_pcs,
+                    "val_recall_at_1": chosen.val_recall_at_1,
+                    "val_recall_at_1_by_count": by_count,
+                    "test_recall_at_1": chosen.recall_at_1,
+                    "selected": bool(chosen.selected),
+                    "run": chosen.run,
+                },
+            )
+            listing.append({**description, "folder": str(fit_file.parent)})
+    return listing
 
 
 def curve_reader(logdir: Path) -> Curves:

@@ -21,14 +21,16 @@ from experiments.plan import Plan
 from experiments.report import SUMMARY, write_report
 from vpr_jax.config import MeshConfig, SweepConfig
 from vpr_jax.data.pair import PairData, benchmark_pair, pair_data
+from vpr_jax.data.preprocess import describe_preprocessing
 from vpr_jax.encoders import objectives
+from vpr_jax.encoders.saved import save_fitted, suite_version
 from vpr_jax.encoders.train import check_batch_splits
 from vpr_jax.errors import UserError
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
 from vpr_jax.method_table import MethodInfo, describe_function
 from vpr_jax.methods import Descriptors, MethodContext, fit_pair_pca
-from vpr_jax.outputs.logdir import config_yaml, identity, lock_logdir
+from vpr_jax.outputs.logdir import config_yaml, fitted_root, identity, lock_logdir
 from vpr_jax.outputs.results import (
     TIMING_NAMES,
     CellKey,
@@ -38,7 +40,7 @@ from vpr_jax.outputs.results import (
 )
 from vpr_jax.outputs.tb import TrainingRun, write_experiment_config
 from vpr_jax.progress import Bar, Log, RunLog
-from vpr_jax.sharding import make_mesh, mesh_size
+from vpr_jax.sharding import make_mesh, mesh_size, to_host
 
 
 def objectives_of(method: MethodInfo, cfg: SweepConfig) -> tuple[str, ...]:
@@ -82,7 +84,7 @@ def method_context(
     run per auto-encoder next to its cell's run (under ``out``, where this process writes)."""
     ident = identity(cfg)
     return MethodContext(
-        checkpoint_dir=Path(cfg.train.checkpoint_dir).expanduser().resolve() / logdir.name / pair,
+        checkpoint_dir=fitted_root(cfg, logdir) / pair,
         training_log=lambda method: TrainingRun(out / pair / f"{method}_training", log),
         identity={k: ident[k] for k in ("data", "split", "seed")},  # + training settings
         mesh=mesh,
@@ -162,33 +164,10 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
     finished = len(cells) - len(todo)
     with Bar(len(todo), "sweep cells") as bar:
         for db, query in plan.pairs:
-            pair = f"{db}-{query}"
-            data, ctx = None, method_context(cfg, logdir, out, pair, log, mesh)
-            for method in plan.methods:
-                # Objectives and counts with any cell still to do: their descriptors are
-                # computed again.
-                left = [
-                    (c.objective, c.removed_pcs)
-                    for c in todo
-                    if (c.season_pair, c.method) == (pair, method.name)
-                ]
-                if not left:
-                    continue
-                if data is None:  # built on first use
-                    data = _pair(plan, db, query)
-                if method.uses_pca_fit and ctx.pca_fit is None:  # one fit per pair
-                    ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
-                todo_ctx = ctx._replace(
-                    objectives=tuple(
-                        o for o in objectives_of(method, cfg) if o in {o for o, _ in left}
-                    ),
-                    removed_pcs=tuple(sorted({k for _, k in left})),
-                )
-                for desc in describe_function(method)(data, cfg, todo_ctx):
-                    for row, warning in _save_descriptors(out, cfg, data, desc, todo, mesh):
-                        finished += 1
-                        bar.advance()
-                        log_cell(log, f"[{finished}/{len(cells)}]", row, warning)
+            for row, warning in _run_pair(plan, db, query, todo, log, out, mesh):
+                finished += 1
+                bar.advance()
+                log_cell(log, f"[{finished}/{len(cells)}]", row, warning)
     write_report(out, cfg)
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)  # empty once every cell moved out
     log(
@@ -197,6 +176,68 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
         f"{logdir})"
     )
     return logdir
+
+
+def _run_pair(
+    plan: Plan,
+    db: str,
+    query: str,
+    todo: set[CellKey],
+    log: RunLog,
+    out: Path,
+    mesh: Mesh | None,
+) -> Iterator[tuple[ResultRow, str | None]]:
+    """Every method of one pair with cells still to do: its descriptors, its fitted state
+    kept, its cells saved as they end (yielded with the descriptors' warning)."""
+    cfg, pair = plan.cfg, f"{db}-{query}"
+    data, ctx = None, method_context(cfg, plan.logdir, out, pair, log, mesh)
+    for method in plan.methods:
+        # Objectives and counts with any cell still to do: their descriptors are computed
+        # again.
+        left = [
+            (c.objective, c.removed_pcs)
+            for c in todo
+            if (c.season_pair, c.method) == (pair, method.name)
+        ]
+        if not left:
+            continue
+        if data is None:  # built on first use
+            data = _pair(plan, db, query)
+        if method.uses_pca_fit and ctx.pca_fit is None:  # one fit per pair
+            ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
+        todo_ctx = ctx._replace(
+            objectives=tuple(o for o in objectives_of(method, cfg) if o in {o for o, _ in left}),
+            removed_pcs=tuple(sorted({k for _, k in left})),
+        )
+        for desc in describe_function(method)(data, cfg, todo_ctx):
+            _save_fitted(method, desc, ctx.checkpoint_dir, cfg, pair)
+            yield from _save_descriptors(out, cfg, data, desc, todo, mesh)
+
+
+def _save_fitted(
+    method: MethodInfo, desc: Descriptors, folder: Path, cfg: SweepConfig, pair: str
+) -> None:
+    """Keep what the method fitted, so ``vpr_jax.load_encoder`` gives it back (process 0;
+    the pair's ``encoder.json`` follows with the report)."""
+    fitted = desc.fitted
+    if fitted is None:
+        return
+    state = jax.tree.map(to_host, fitted.state)  # on every process: it may gather
+    if jax.process_index() != 0:
+        return
+    description = {
+        "method": method.plugin or method.name,
+        "name": method.name,
+        "objective": desc.objective,
+        "pair": pair,
+        "counts": [int(k) for k in fitted.counts],
+        "preprocessing": describe_preprocessing(
+            cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded
+        ),
+        "seed": cfg.seed,
+        "suite_version": suite_version(),
+    }
+    save_fitted(folder / fitted.folder, fitted.encode, state, description)
 
 
 def _pair(plan: Plan, db: str, query: str) -> PairData:

@@ -4,6 +4,7 @@ is one line, with the finished cells kept."""
 
 import json
 import os
+import sys
 import textwrap
 from pathlib import Path
 
@@ -12,7 +13,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from tests.conftest import REPO, assert_one_line_error, read_run, run_cli
+from tests.conftest import (
+    REPO,
+    assert_one_line_error,
+    env_with_repo,
+    read_run,
+    run_cli,
+    run_process,
+)
 from vpr_jax.config import parse_config
 from vpr_jax.errors import UserError
 from vpr_jax.method_table import METHODS, plugin_info, resolve_methods
@@ -80,6 +88,7 @@ def test_a_method_of_your_own_runs_like_a_built_in_one(tmp_path):
         "methods=[raw,my_methods:centred_pixels]",
         f"plugin.centred_pixels.record={record}",
         "plugin.centred_pixels.scale=3",
+        "preprocess=patchnorm",
         f"logdir={logdir}",
         env=env,
     )
@@ -107,6 +116,23 @@ def test_a_method_of_your_own_runs_like_a_built_in_one(tmp_path):
     for figure in ("pr_curves.png", "correct_matches.png"):
         legend = Image.open(logdir / "figures" / figure).text["Description"]
         assert "centred_pixels" in legend and "raw" in legend, (figure, legend)
+    # Its fitted state is saved: a fresh process loads it (patch normalisation included) and
+    # scores the test places as the sweep did.
+    checks = run_process(
+        [
+            sys.executable,
+            "tests/saved_encoder_checks.py",
+            str(logdir),
+            "summer-fall",
+            *proc.args[3:],
+        ],
+        env=env_with_repo(**env),
+    )
+    assert checks.returncode == 0, checks.stderr[-3000:]
+    by_folder = json.loads(checks.stdout.strip().splitlines()[-1])
+    assert sorted(Path(f).name for f in by_folder) == ["centred_pixels", "raw"]
+    for check in by_folder.values():
+        assert check["score_gap"] < 1e-5 and check["recall_at_1"] == check["sweep_recall_at_1"]
     # A rerun finds every cell done; other settings of the method are another configuration.
     again = run_cli(*proc.args[3:], env=env)
     assert "resuming: 2 of 2 cells" in again.stdout and again.returncode == 0

@@ -225,6 +225,7 @@ def test_logdirs_of_one_name_cannot_train_into_the_same_checkpoint_folder(tmp_pa
 def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
     logdir = tmp_path / "runs"
     args = [*SMALL, "methods=[raw,pca]", "removed_pcs=[0,5,20]", f"logdir={logdir}"]
+    args.append(f"train.checkpoint_dir={tmp_path / 'checkpoints'}")  # not the repository's
     # A cell's TensorBoard run without basis images is ~42 KB, with them ~54 KB: the first
     # PCA cell that shows removed components cannot be written.
     proc = _limited(args, 48, tmp_path)  # files up to 48 KiB

@@ -149,7 +149,7 @@ def save(directory: Path, step: int, state: NamedTuple, meta: dict) -> None:
     state = jax.tree.map(np.asarray, state)
     Path(directory).mkdir(parents=True, exist_ok=True)
     try:
-        with _orbax_noise_held(), _manager(directory) as manager:
+        with orbax_noise_held(), _manager(directory) as manager:
             manager.save(
                 step,
                 args=ocp.args.Composite(
@@ -159,11 +159,11 @@ def save(directory: Path, step: int, state: NamedTuple, meta: dict) -> None:
             )
             manager.wait_until_finished()
     except (ValueError, RuntimeError) as err:
-        raise _os_error(err, directory) from None
+        raise as_os_error(err, directory) from None
 
 
 @contextlib.contextmanager
-def _orbax_noise_held():
+def orbax_noise_held():
     """Hold what is written to stderr (file descriptor 2) while orbax saves, and pass it on
     only if the save succeeds. A failed write makes orbax's worker threads log the same fault
     several times over, with tracebacks, before the error reaches us; the sweep then says it
@@ -202,7 +202,7 @@ def _restore_stderr(saved: int) -> None:
     os.close(saved)
 
 
-def _os_error(err: Exception, directory: Path) -> Exception:
+def as_os_error(err: Exception, directory: Path) -> Exception:
     """A write fault orbax (TensorStore) reports as ``ValueError: RESOURCE_EXHAUSTED ...
     [os_error_code='28']`` becomes the ``OSError`` it was (ENOSPC here), naming the model's
     folder, so the sweep reports it like any other full disk; anything else is kept."""

@@ -17,7 +17,7 @@ from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import fit_autoencoder
 from vpr_jax.files import lock_folder
-from vpr_jax.methods.descriptors import Descriptors, MethodContext, as_images, describe
+from vpr_jax.methods.descriptors import Descriptors, Fitted, MethodContext, as_images, describe
 
 
 def autoencoder_spec(method: str, cfg: SweepConfig) -> ae.Spec:
@@ -123,4 +123,5 @@ def _autoencoder_descriptors(
         n_iter=result.epochs,
         stopped_early=result.stopped_early,
         basis_name="hidden_units",
+        fitted=Fitted(folder=model_name(method, objective), encode="autoencoder", state=None),
     )

@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -27,6 +27,16 @@ class PCAFit(NamedTuple):
 
     state: pca.PCAState
     seconds: float
+
+
+class Fitted(NamedTuple):
+    """What a method fitted, to be saved as an encoder (``vpr_jax.encoders.saved``)."""
+
+    folder: str  # under the pair's folder of train.checkpoint_dir: the run's name, less "_dsNN"
+    encode: str  # how the state encodes: "module:function" (encode(state, images,
+    # removed_pcs), see vpr_jax.encoders.saved), "autoencoder" or "plugin"
+    state: Any  # the pytree of arrays (None for the auto-encoders: their checkpoint holds it)
+    counts: tuple[int, ...] = (0,)  # the removed-PC counts this state serves
 
 
 class Descriptors(NamedTuple):
@@ -49,6 +59,7 @@ class Descriptors(NamedTuple):
     basis_name: str = "removed_components"  # method removed or learned; TensorBoard tag
     warning: str | None = None  # one line for the run log (non-convergence, degenerate)
     objective: str = ""  # the auto-encoders' training objective; "" for the other methods
+    fitted: Fitted | None = None  # what to save, so load_encoder gives the encoder back
 
 
 class MethodContext(NamedTuple):

@@ -16,12 +16,15 @@ from vpr_jax.encoders import diff_pca, ica, lda, pca
 from vpr_jax.errors import UserError
 from vpr_jax.methods.descriptors import (
     Descriptors,
+    Fitted,
     MethodContext,
     PCAFit,
     as_images,
     describe,
     timed,
 )
+
+SAVED = "vpr_jax.encoders.saved"  # where a saved state's encode functions live
 
 
 def pca_components_needed(cfg: SweepConfig, n_samples: int, n_features: int) -> int | None:
@@ -64,7 +67,8 @@ def _centred(images, mean):
 def describe_raw(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
     """Raw pixels, centred with the training mean; cosine does the L2 normalisation."""
     mean, fit_s = timed(lambda x: jax.numpy.mean(pca.flatten(x), axis=0), pair.train)
-    yield describe("raw", lambda x: _centred(x, mean), pair, fit_seconds=fit_s)
+    fitted = Fitted(folder="raw", encode=f"{SAVED}:encode_centred", state={"mean": mean})
+    yield describe("raw", lambda x: _centred(x, mean), pair, fit_seconds=fit_s, fitted=fitted)
 
 
 def describe_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
@@ -78,6 +82,8 @@ def describe_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
     state, ks = ctx.pca_fit.state, ctx.removed_pcs
     shown = as_images(state.components[: cfg.tb.n_basis_images], pair)
     basis = [shown[:k] if k else None for k in ks]
+    how = "encode_pixels" if cfg.pca.output == "pixels" else "encode_suffix"
+    fitted = Fitted(folder="pca", encode=f"{SAVED}:{how}", state=state, counts=cfg.removed_pcs)
     if cfg.pca.output == "pixels":
         for k, removed in zip(ks, basis, strict=True):
             yield describe(
@@ -87,6 +93,7 @@ def describe_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
                 removed_pcs=(k,),
                 basis=(removed,),
                 fit_seconds=ctx.pca_fit.seconds,
+                fitted=fitted,
             )
     else:
         yield describe(
@@ -97,6 +104,7 @@ def describe_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
             starts=ks,
             basis=basis,
             fit_seconds=ctx.pca_fit.seconds,
+            fitted=fitted,
         )
 
 
@@ -122,6 +130,12 @@ def describe_diff_pca(
         basis=[shown[:k] if k else None for k in ks],
         fit_seconds=fit_s,
         basis_name="removed_changes",
+        fitted=Fitted(
+            folder="diff_pca",
+            encode=f"{SAVED}:encode_suffix",
+            state=state,
+            counts=cfg.removed_pcs,
+        ),
     )
 
 
@@ -142,6 +156,7 @@ def describe_lda(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
         basis=(shown,),
         fit_seconds=ctx.pca_fit.seconds + lda_s,
         basis_name="invariant_directions",
+        fitted=Fitted(folder="lda", encode=f"{SAVED}:encode_lda", state=state),
     )
 
 
@@ -196,4 +211,7 @@ def describe_ica(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
             n_iter=int(state.n_iter),
             converged=converged,
             basis_name="independent_components",
+            fitted=Fitted(
+                folder=f"ica_k{k:03d}", encode=f"{SAVED}:encode_ica", state=state, counts=(k,)
+            ),
         )

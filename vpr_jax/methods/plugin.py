@@ -29,7 +29,7 @@ from vpr_jax.config import SweepConfig
 from vpr_jax.data.pair import PairData
 from vpr_jax.errors import UserError
 from vpr_jax.method_table import MethodInfo, load_plugin
-from vpr_jax.methods.descriptors import Descriptors, MethodContext, describe, timed
+from vpr_jax.methods.descriptors import Descriptors, Fitted, MethodContext, describe, timed
 
 
 def plugin_key(seed: int, name: str) -> jax.Array:
@@ -86,4 +86,5 @@ def describe_plugin(
     except Exception as err:  # the user's code
         raise _fails(info, "fit", err) from None
     encode = checked_encode(info, obj.encode)
-    yield describe(info.name, lambda x: encode(state, x), pair, fit_seconds=fit_s)
+    fitted = Fitted(folder=info.name, encode="plugin", state=state)
+    yield describe(info.name, lambda x: encode(state, x), pair, fit_seconds=fit_s, fitted=fitted)

@@ -43,6 +43,16 @@ AXIS_KEYS = {"sequence": ("enabled", "ds"), **{m: ("objective",) for m in TRAINE
 FORMAT = 1
 
 
+ENCODERS_CSV = "encoders.csv"  # logdir/encoders.csv: every saved encoder and its folder
+LISTING = ("pair", "method", "objective", "removed_pcs", "val_recall_at_1", "folder")
+
+
+def fitted_root(cfg: SweepConfig, logdir: Path) -> Path:
+    """Where a logdir's fitted states and trained models go, a folder per pair:
+    ``<train.checkpoint_dir>/<logdir's name>/<pair>/<method's folder>``."""
+    return Path(cfg.train.checkpoint_dir).expanduser().resolve() / Path(logdir).name
+
+
 def identity(cfg: SweepConfig | dict) -> dict:
     """The part of a config (or of its saved YAML) that determines the numbers of every cell,
     as plain YAML data."""

@@ -1,0 +1,164 @@
+"""A fitted state on disk: any pytree of arrays (dicts, lists, tuples, NamedTuples, None)
+saved with orbax and restored in the structure it was saved in.
+
+Orbax restores a tree without a target as plain dicts and lists, so the tree's skeleton is
+kept beside its arrays (``skeleton.json``): containers by kind, a NamedTuple by its
+importable class, each leaf by its index among the flat ``leaf_NNN`` arrays orbax holds.
+Restoring rebuilds the skeleton, gives orbax the target of every leaf's shape and dtype,
+and puts the arrays back in their places. Python numbers become 0-d arrays.
+
+Writes are whole or absent: the new folder is written aside and moved into place.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+
+from vpr_jax.encoders.checkpoints import as_os_error, orbax_noise_held
+from vpr_jax.errors import UserError
+
+SKELETON, ARRAYS = "skeleton.json", "arrays"
+
+
+def _skeleton(tree: Any, leaves: list[np.ndarray]) -> Any:
+    """JSON data of ``tree``'s structure; its arrays appended to ``leaves``."""
+    if tree is None:
+        return {"none": None}
+    if isinstance(tree, tuple) and hasattr(tree, "_fields"):  # a NamedTuple
+        kind = type(tree)
+        return {
+            "namedtuple": f"{kind.__module__}:{kind.__qualname__}",
+            "fields": {f: _skeleton(getattr(tree, f), leaves) for f in tree._fields},
+        }
+    if isinstance(tree, dict):
+        if not all(isinstance(k, str) for k in tree):
+            raise TypeError(f"a fitted state's dict keys must be strings, got {list(tree)}")
+        return {"dict": {k: _skeleton(v, leaves) for k, v in tree.items()}}
+    if isinstance(tree, list | tuple):
+        kind = "list" if isinstance(tree, list) else "tuple"
+        return {kind: [_skeleton(v, leaves) for v in tree]}
+    try:
+        array = np.asarray(jax.device_get(tree))
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"a fitted state holds {type(tree).__name__}, not an array") from err
+    if array.dtype == object:
+        raise TypeError(f"a fitted state holds {type(tree).__name__}, not an array")
+    leaves.append(array)
+    return {"leaf": len(leaves) - 1, "shape": list(array.shape), "dtype": str(array.dtype)}
+
+
+def _rebuild(skeleton: Any, leaves: dict[str, Any]) -> Any:
+    (kind, value), *_ = skeleton.items()
+    if kind == "none":
+        return None
+    if kind == "leaf":
+        return leaves[f"leaf_{value:03d}"]
+    if kind == "dict":
+        return {k: _rebuild(v, leaves) for k, v in value.items()}
+    if kind in ("list", "tuple"):
+        items = [_rebuild(v, leaves) for v in value]
+        return items if kind == "list" else tuple(items)
+    module, name = value.split(":")
+    cls = importlib.import_module(module)
+    for part in name.split("."):
+        cls = getattr(cls, part)
+    return cls(**{f: _rebuild(v, leaves) for f, v in skeleton["fields"].items()})
+
+
+def _targets(skeleton: Any, out: dict) -> dict:
+    """Every leaf's shape and dtype, as orbax's restore target."""
+    if "leaf" in skeleton:
+        out[f"leaf_{skeleton['leaf']:03d}"] = jax.ShapeDtypeStruct(
+            tuple(skeleton["shape"]), np.dtype(skeleton["dtype"])
+        )
+        return out
+    if "fields" in skeleton:  # a NamedTuple
+        children = list(skeleton["fields"].values())
+    elif "dict" in skeleton:
+        children = list(skeleton["dict"].values())
+    else:  # list, tuple or none
+        children = next(iter(skeleton.values())) or []
+    for child in children:
+        _targets(child, out)
+    return out
+
+
+def _checkpointer() -> ocp.Checkpointer:
+    """Synchronous, and this process's alone: with several processes (``mesh.distributed``)
+    process 0 writes, and orbax must not wait for the others at a barrier."""
+    me = ocp.options.MultiprocessingOptions(
+        primary_host=jax.process_index(), active_processes={jax.process_index()}
+    )
+    handler = ocp.StandardCheckpointHandler(multiprocessing_options=me)
+    return ocp.Checkpointer(handler, multiprocessing_options=me)
+
+
+def save_state(folder: Path, state: Any, files: dict[str, str] | None = None) -> None:
+    """Write ``state`` (and the text ``files``, name -> content) as the folder ``folder``,
+    whole: aside first, then moved into place over any older one."""
+    folder = Path(folder).expanduser().resolve()
+    leaves: list[np.ndarray] = []
+    skeleton = _skeleton(state, leaves)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    try:
+        arrays = {f"leaf_{i:03d}": leaf for i, leaf in enumerate(leaves)}
+        try:
+            with orbax_noise_held():
+                _checkpointer().save(staging / ARRAYS, args=ocp.args.StandardSave(arrays))
+        except (ValueError, RuntimeError) as err:  # a write fault, as the OSError it was
+            raise as_os_error(err, folder) from None
+        (staging / SKELETON).write_text(json.dumps(skeleton))
+        for name, text in (files or {}).items():
+            (staging / name).write_text(text)
+        _replace_folder(staging, folder)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _replace_folder(new: Path, folder: Path) -> None:
+    """Move ``new`` to ``folder``; an older ``folder`` is moved aside first, then deleted."""
+    old = None
+    if folder.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.old.", dir=folder.parent))
+        os.replace(folder, old / "state")
+    os.replace(new, folder)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def restore_state(folder: Path) -> Any:
+    """The state ``save_state`` wrote, in its structure (numpy arrays as leaves). A folder
+    that holds none, or whose arrays are cut short: UserError naming it."""
+    folder = Path(folder).expanduser().resolve()
+    try:
+        skeleton = json.loads((folder / SKELETON).read_text())
+    except (OSError, ValueError) as err:
+        raise UserError(
+            f"{folder} holds no fitted state ({SKELETON}: {err}): point at a folder a sweep "
+            "saved (python -m experiments.encoders LOGDIR lists them)"
+        ) from None
+    targets = _targets(skeleton, {})
+    try:
+        leaves = (
+            _checkpointer().restore(folder / ARRAYS, args=ocp.args.StandardRestore(targets))
+            if targets
+            else {}
+        )
+    except Exception as err:  # orbax and TensorStore raise many kinds for a damaged folder
+        first = str(err).strip().splitlines()[0][:200] if str(err).strip() else ""
+        raise UserError(
+            f"{folder} has a damaged or incomplete fitted state ({type(err).__name__}: "
+            f"{first}): rerun the sweep that saved it (delete the folder first)"
+        ) from None
+    return _rebuild(skeleton, leaves)
