@@ -10,7 +10,6 @@ one count's descriptors. ``save_cell`` evaluates the matches and writes the cell
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from vpr_jax.evaluation.bootstrap import cell_intervals
 from vpr_jax.evaluation.matching import top_k_matches
 from vpr_jax.evaluation.metrics import Evaluation, evaluate_matches
 from vpr_jax.evaluation.sequence import sequence_top_k_cosine, velocities
+from vpr_jax.files import replace_folder
 from vpr_jax.method_table import SWEEPS_REMOVED_PCS
 from vpr_jax.methods import Descriptors, model_name
 from vpr_jax.outputs.results import ResultRow, append_results
@@ -144,9 +144,7 @@ def _write_run(
         best_correct=ev.best_correct,
         has_match=ev.has_match,
     )
-    final = logdir / name
-    final.parent.mkdir(parents=True, exist_ok=True)
-    os.replace(staging, final)
+    replace_folder(staging, logdir / name)
 
 
 def block_length(cfg: SweepConfig, ds: int) -> int:

@@ -8,7 +8,6 @@ import csv
 import functools
 import io
 import math
-import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -20,7 +19,7 @@ from vpr_jax.config import SweepConfig
 from vpr_jax.encoders.saved import FIT_JSON, describe_encoder, read_description
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
-from vpr_jax.files import atomic_write_text
+from vpr_jax.files import atomic_write_text, replace_folder
 from vpr_jax.method_table import SWEEPS_REMOVED_PCS
 from vpr_jax.methods import model_name
 from vpr_jax.outputs.logdir import ENCODERS_CSV, LISTING, fitted_root
@@ -143,10 +142,7 @@ def write_tb_summaries(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: 
         write_pair_summary(
             staging, cells, pr_convention=cfg.pr_convention, n_thresholds=cfg.tb.pr_thresholds
         )
-        final = logdir / SUMMARY / pair
-        shutil.rmtree(final, ignore_errors=True)
-        final.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(staging, final)
+        replace_folder(staging, logdir / SUMMARY / pair)
 
 
 def differences_to_pca(

@@ -25,7 +25,7 @@ from vpr_jax.data.preprocess import describe_preprocessing
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.saved import save_fitted, suite_version
 from vpr_jax.encoders.train import check_batch_splits
-from vpr_jax.errors import UserError
+from vpr_jax.errors import UserError, first_line
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
 from vpr_jax.method_table import MethodInfo, describe_function
@@ -57,9 +57,9 @@ def start_devices(cfg: MeshConfig, log: Log) -> Mesh | None:
         try:
             jax.distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
         except (RuntimeError, ValueError) as err:
-            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
             raise UserError(
-                f"mesh.distributed=true could not join the other processes ({first}): start "
+                f"mesh.distributed=true could not join the other processes ({first_line(err)}): "
+                "start "
                 "one process per host under a launcher JAX detects (SLURM, Open MPI), or set "
                 "mesh.coordinator=HOST:PORT, mesh.num_processes and mesh.process_id"
             ) from None
@@ -191,6 +191,7 @@ def _run_pair(
     kept, its cells saved as they end (yielded with the descriptors' warning)."""
     cfg, pair = plan.cfg, f"{db}-{query}"
     data, ctx = None, method_context(cfg, plan.logdir, out, pair, log, mesh)
+    saved: set[str] = set()  # fitted folders written in this run
     for method in plan.methods:
         # Objectives and counts with any cell still to do: their descriptors are computed
         # again.
@@ -210,7 +211,9 @@ def _run_pair(
             removed_pcs=tuple(sorted({k for _, k in left})),
         )
         for desc in describe_function(method)(data, cfg, todo_ctx):
-            _save_fitted(method, desc, ctx.checkpoint_dir, cfg, pair)
+            if desc.fitted is not None and desc.fitted.folder not in saved:
+                saved.add(desc.fitted.folder)  # pca.output=pixels: one fit, a desc per count
+                _save_fitted(method, desc, ctx.checkpoint_dir, cfg, pair)
             yield from _save_descriptors(out, cfg, data, desc, todo, mesh)
 
 
@@ -220,8 +223,6 @@ def _save_fitted(
     """Keep what the method fitted, so ``vpr_jax.load_encoder`` gives it back (process 0;
     the pair's ``encoder.json`` follows with the report)."""
     fitted = desc.fitted
-    if fitted is None:
-        return
     state = jax.tree.map(to_host, fitted.state)  # on every process: it may gather
     if jax.process_index() != 0:
         return

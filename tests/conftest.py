@@ -209,29 +209,21 @@ def private_xla_cache(folder: Path) -> dict:
     return {"JAX_COMPILATION_CACHE_DIR": str(copy)}
 
 
-@contextlib.contextmanager
-def _shared_by_workers(tmp_path_factory, name: str) -> Iterator[tuple[Path, bool]]:
-    """``(folder, first)``: a folder every pytest-xdist worker of this session sees (the
-    folder of a plain run otherwise), held under an exclusive file lock for the block;
-    ``first`` until a block over it has ended without an error."""
+def shared_folder(tmp_path_factory, name: str, make: Callable[[Path], None]) -> Path:
+    """A folder ``make(folder)`` fills once per session, whichever pytest-xdist worker asks
+    first (under an exclusive file lock in the session's folder, which every worker's
+    basetemp lies in); the others wait for it, then read it (read-only for every test)."""
     base = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
-        base = base.parent  # every worker's basetemp lies in the session's one folder
+        base = base.parent
     folder, done = base / name, base / f"{name}.done"
     with open(base / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
-        yield folder, not done.exists()
-        done.touch()
-
-
-def shared_folder(tmp_path_factory, name: str, make: Callable[[Path], None]) -> Path:
-    """A folder ``make(folder)`` fills once per session, whichever worker asks first; the
-    others wait for it and then read it (read-only for every test)."""
-    with _shared_by_workers(tmp_path_factory, name) as (folder, first):
-        if first:
+        if not done.exists():
             shutil.rmtree(folder, ignore_errors=True)  # what a failed attempt left
             folder.mkdir(parents=True)
             make(folder)
+            done.touch()
     return folder
 
 

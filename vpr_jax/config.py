@@ -643,10 +643,7 @@ def without_aligned_learning(cfg: SweepConfig, asked: set[str]) -> SweepConfig:
     and objectives that learn from the alignment are left out of the defaults; asked for by
     name, they are one line."""
     source = f"data.source={cfg.data.source}"
-    fix = (
-        "set data.train_source and data.train_root to an aligned route to learn from (e.g. "
-        "Nordland's training places), or leave them out"
-    )
+    fix = method_table.ALIGNED_FIX
     wanted = [m for m in cfg.methods if m in method_table.NEEDS_ALIGNED]
     _check(
         not (wanted and "methods" in asked),

@@ -1,6 +1,13 @@
 """The one exception type for mistakes a user can fix (bad data, bad config, bad paths)."""
 
 
+def first_line(err: BaseException) -> str:
+    """``TypeName: the first line of its message`` (``TypeName`` when it has none): what a
+    one-line error says of an exception it reports."""
+    text = str(err).strip()
+    return f"{type(err).__name__}: {text.splitlines()[0]}" if text else type(err).__name__
+
+
 class UserError(Exception):
     """Bad input. The CLI prints ``str(error)`` as one line and exits with code 2.
 

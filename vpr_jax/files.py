@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import shutil
 import socket
 import tempfile
 import time
@@ -41,6 +42,20 @@ def atomic_write_text(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` all or nothing (``atomic_open``)."""
     with atomic_open(path) as f:
         f.write(text)
+
+
+def replace_folder(new: Path, folder: Path) -> None:
+    """Move the finished folder ``new`` to ``folder``, over an older one: the older is moved
+    aside first and deleted last, so ``folder`` is always whole (the old or the new)."""
+    new, folder = Path(new), Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    aside = None
+    if folder.exists():
+        aside = Path(tempfile.mkdtemp(prefix=f".{folder.name}.old.", dir=folder.parent))
+        os.replace(folder, aside / folder.name)
+    os.replace(new, folder)
+    if aside is not None:
+        shutil.rmtree(aside, ignore_errors=True)
 
 
 def _fsync_dir(folder: Path) -> None:

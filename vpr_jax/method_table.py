@@ -21,7 +21,7 @@ import re
 import zlib
 from typing import Any, NamedTuple
 
-from vpr_jax.errors import UserError
+from vpr_jax.errors import UserError, first_line
 
 
 class MethodInfo(NamedTuple):
@@ -92,6 +92,11 @@ TRAINED = frozenset(m.name for m in BUILTIN if m.trained)
 PLUGIN_COLOURS = ("#e377c2", "#8c564b", "#bcbd22", "#393b79", "#637939", "#843c39")
 PLUGIN_DESCRIBE = "vpr_jax.methods.plugin:describe_plugin"
 
+# What a method that learns from aligned places is told on data without them.
+ALIGNED_FIX = (
+    "set data.train_source and data.train_root to an aligned route to learn from (e.g. "
+    "Nordland's training places), or leave them out"
+)
 _PLUGIN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 
 
@@ -160,16 +165,14 @@ def colour_of(method: str) -> str:
 
 def load_plugin(spec: str) -> Any:
     """The object ``module:name`` names, checked for ``fit`` and ``encode``; UserError (one
-    line, the traceback of a failing import as its detail) when it cannot serve."""
+    line) when it cannot serve."""
     module_name, name = spec.rsplit(":", 1)
     try:
         module = importlib.import_module(module_name)
     except Exception as err:  # the user's module: any failure is theirs to see
-        first = str(err).strip().splitlines()[0] if str(err).strip() else ""
         raise UserError(
-            f"method {spec}: module {module_name} does not import ({type(err).__name__}"
-            f"{': ' + first if first else ''}): put its folder on PYTHONPATH, and see its "
-            f"traceback with python -c 'import {module_name}'"
+            f"method {spec}: module {module_name} does not import ({first_line(err)}): put its "
+            f"folder on PYTHONPATH, and see its traceback with python -c 'import {module_name}'"
         ) from None
     obj = getattr(module, name, None)
     if obj is None:
@@ -199,8 +202,7 @@ def resolve_methods(methods: tuple[str, ...], aligned: bool, source: str) -> tup
         if needs and not aligned:
             raise UserError(
                 f"method {method} learns from aligned training places (needs_alignment), "
-                f"which data.source={source} does not have: set data.train_source and "
-                "data.train_root to an aligned route to learn from, or leave it out"
+                f"which data.source={source} does not have: {ALIGNED_FIX}"
             )
         out.append(plugin_info(method, needs))
     return tuple(out)

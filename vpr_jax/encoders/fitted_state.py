@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import importlib
 import json
-import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -25,7 +24,8 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from vpr_jax.encoders.checkpoints import as_os_error, orbax_noise_held
-from vpr_jax.errors import UserError
+from vpr_jax.errors import UserError, first_line
+from vpr_jax.files import replace_folder
 
 SKELETON, ARRAYS = "skeleton.json", "arrays"
 
@@ -121,20 +121,9 @@ def save_state(folder: Path, state: Any, files: dict[str, str] | None = None) ->
         (staging / SKELETON).write_text(json.dumps(skeleton))
         for name, text in (files or {}).items():
             (staging / name).write_text(text)
-        _replace_folder(staging, folder)
+        replace_folder(staging, folder)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-
-
-def _replace_folder(new: Path, folder: Path) -> None:
-    """Move ``new`` to ``folder``; an older ``folder`` is moved aside first, then deleted."""
-    old = None
-    if folder.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.old.", dir=folder.parent))
-        os.replace(folder, old / "state")
-    os.replace(new, folder)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 def restore_state(folder: Path) -> Any:
@@ -156,9 +145,8 @@ def restore_state(folder: Path) -> Any:
             else {}
         )
     except Exception as err:  # orbax and TensorStore raise many kinds for a damaged folder
-        first = str(err).strip().splitlines()[0][:200] if str(err).strip() else ""
         raise UserError(
-            f"{folder} has a damaged or incomplete fitted state ({type(err).__name__}: "
-            f"{first}): rerun the sweep that saved it (delete the folder first)"
+            f"{folder} has a damaged or incomplete fitted state ({first_line(err)[:200]}): "
+            "rerun the sweep that saved it (delete the folder first)"
         ) from None
     return _rebuild(skeleton, leaves)

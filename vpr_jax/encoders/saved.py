@@ -142,7 +142,7 @@ def _served(description: dict, removed_pcs: int | None, folder: Path) -> int:
     return k
 
 
-def _autoencoder(folder: Path, description: dict):
+def _autoencoder(folder: Path):
     """The trained model's encoder and its best parameters (from its training checkpoint)."""
     meta = checkpoints.read_meta(folder)
     try:
@@ -170,7 +170,7 @@ def load_encoder(folder: str | Path, removed_pcs: int | None = None):
     how = str(description.get("encode"))
     k = _served(description, removed_pcs, folder)
     if how == "autoencoder":
-        encode, params = _autoencoder(folder, description)
+        encode, params = _autoencoder(folder)
     elif how == "plugin":
         user = load_plugin(description["method"])
         encode, params = (

@@ -4,7 +4,6 @@ describe the pair with its code."""
 from __future__ import annotations
 
 import dataclasses
-import zlib
 from collections.abc import Iterator
 
 import jax
@@ -17,7 +16,14 @@ from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import fit_autoencoder
 from vpr_jax.files import lock_folder
-from vpr_jax.methods.descriptors import Descriptors, Fitted, MethodContext, as_images, describe
+from vpr_jax.methods.descriptors import (
+    Descriptors,
+    Fitted,
+    MethodContext,
+    as_images,
+    describe,
+    method_key,
+)
 
 
 def autoencoder_spec(method: str, cfg: SweepConfig) -> ae.Spec:
@@ -83,7 +89,7 @@ def describe_autoencoder(
                 spec,
                 objectives.training_data(objective, pair.train),
                 objectives.training_data(objective, pair.val),
-                jax.random.fold_in(jax.random.key(cfg.seed), zlib.crc32(method.encode())),
+                method_key(cfg.seed, method),
                 settings,
                 checkpoint_dir=ctx.checkpoint_dir / name if ctx.checkpoint_dir else None,
                 identity={

@@ -5,6 +5,7 @@ them (timed fits, warm encoding, the degenerate-descriptor check)."""
 from __future__ import annotations
 
 import time
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -72,6 +73,12 @@ class MethodContext(NamedTuple):
     training_log: Callable[[str], TrainingLog] | None = None  # method name -> its log
     identity: dict | None = None  # what besides its spec determines a trained model
     mesh: Mesh | None = None  # devices to split work over (vpr_jax.sharding); None: one
+
+
+def method_key(seed: int, name: str) -> jax.Array:
+    """The key a method draws its randomness from: the sweep's seed and the method's name
+    (so adding or dropping another method changes nothing)."""
+    return jax.random.fold_in(jax.random.key(seed), zlib.crc32(name.encode()))
 
 
 def timed(fn: Callable, *args):

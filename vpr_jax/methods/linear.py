@@ -13,6 +13,7 @@ from jax.sharding import Mesh
 from vpr_jax.config import SweepConfig
 from vpr_jax.data.pair import PairData
 from vpr_jax.encoders import diff_pca, ica, lda, pca
+from vpr_jax.encoders.saved import encode_centred
 from vpr_jax.errors import UserError
 from vpr_jax.methods.descriptors import (
     Descriptors,
@@ -58,17 +59,16 @@ def fit_pair_pca(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> PCAFit:
     return PCAFit(state, seconds)
 
 
-@jax.jit
-def _centred(images, mean):
-    """Raw descriptor: flattened pixels minus the training mean (compiled once per shape)."""
-    return pca.flatten(images) - mean
+_centred = jax.jit(encode_centred)  # the saved encoder's own; compiled once per shape
 
 
 def describe_raw(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
     """Raw pixels, centred with the training mean; cosine does the L2 normalisation."""
     mean, fit_s = timed(lambda x: jax.numpy.mean(pca.flatten(x), axis=0), pair.train)
     fitted = Fitted(folder="raw", encode=f"{SAVED}:encode_centred", state={"mean": mean})
-    yield describe("raw", lambda x: _centred(x, mean), pair, fit_seconds=fit_s, fitted=fitted)
+    yield describe(
+        "raw", lambda x: _centred(fitted.state, x, 0), pair, fit_seconds=fit_s, fitted=fitted
+    )
 
 
 def describe_pca(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:

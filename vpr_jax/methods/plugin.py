@@ -19,7 +19,6 @@ Whatever goes wrong inside the user's code stops the sweep with one line naming 
 from __future__ import annotations
 
 import traceback
-import zlib
 from collections.abc import Callable, Iterator
 
 import jax
@@ -27,22 +26,22 @@ import jax.numpy as jnp
 
 from vpr_jax.config import SweepConfig
 from vpr_jax.data.pair import PairData
-from vpr_jax.errors import UserError
+from vpr_jax.errors import UserError, first_line
 from vpr_jax.method_table import MethodInfo, load_plugin
-from vpr_jax.methods.descriptors import Descriptors, Fitted, MethodContext, describe, timed
-
-
-def plugin_key(seed: int, name: str) -> jax.Array:
-    """The key a user's method's ``fit`` receives: the sweep's seed and the method's name."""
-    return jax.random.fold_in(jax.random.key(seed), zlib.crc32(name.encode()))
+from vpr_jax.methods.descriptors import (
+    Descriptors,
+    Fitted,
+    MethodContext,
+    describe,
+    method_key,
+    timed,
+)
 
 
 def _fails(info: MethodInfo, step: str, err: Exception) -> UserError:
-    first = str(err).strip().splitlines()[0] if str(err).strip() else ""
     return UserError(
-        f"method {info.name} ({info.plugin}): {step} raised {type(err).__name__}"
-        f"{': ' + first if first else ''}: fix it and rerun the same command, the finished "
-        "cells are kept (the traceback is in sweep.log)",
+        f"method {info.name} ({info.plugin}): {step} raised {first_line(err)}: fix it and "
+        "rerun the same command, the finished cells are kept (the traceback is in sweep.log)",
         detail=traceback.format_exc(),
     )
 
@@ -80,7 +79,7 @@ def describe_plugin(
     obj = load_plugin(info.plugin)
     aligned = pair.aligned_train if pair.aligned_training else None
     settings = dict(cfg.plugin.get(info.name, {}))
-    key = plugin_key(cfg.seed, info.name)
+    key = method_key(cfg.seed, info.name)
     try:
         state, fit_s = timed(lambda: obj.fit(pair.train, aligned, key, **settings))
     except Exception as err:  # the user's code
