@@ -10,6 +10,7 @@ one count's descriptors. ``save_cell`` evaluates the matches and writes the cell
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
 
@@ -50,9 +51,10 @@ def match(
     cfg: SweepConfig,
     mesh: Mesh | None,
     part: str = "test",
+    k: int = TOP_K,
 ) -> list[TopK]:
-    """The top-K matches of every query for each removed-PC count in ``counts`` (counts of
-    ``desc``), in that order; ``part="val"``: of the validation queries against the
+    """The top-``k`` matches of every query for each removed-PC count in ``counts`` (counts
+    of ``desc``), in that order; ``part="val"``: of the validation queries against the
     validation database.
 
     ds = 1: plain cosine, one blockwise pass for all counts (suffix starts), split over the
@@ -65,8 +67,8 @@ def match(
         scores, idx = top_k_matches(
             query,
             db,
-            TOP_K,
-            starts=tuple(start_of[k] for k in counts),
+            k,
+            starts=tuple(start_of[count] for count in counts),
             block_size=cfg.matching.block_size,
             mesh=mesh,
         )
@@ -74,17 +76,17 @@ def match(
     seq = cfg.sequence
     return [
         sequence_top_k_cosine(
-            query[:, start_of[k] :],
-            db[:, start_of[k] :],
+            query[:, start_of[count] :],
+            db[:, start_of[count] :],
             ds,
             query_ids=query_ids,
             db_ids=db_ids,
             vels=velocities(seq.v_min, seq.v_max, seq.v_step),
             contrast_window=seq.contrast_window,
             uniqueness_window=seq.uniqueness_window,
-            k=TOP_K,
+            k=k,
         )
-        for k in counts
+        for count in counts
     ]
 
 
@@ -152,6 +154,14 @@ def block_length(cfg: SweepConfig, ds: int) -> int:
     return max(cfg.bootstrap.block_length, ds)
 
 
+def _validation_scores(cfg: SweepConfig, pair: PairData, val_top: TopK | None):
+    """(recall@1, AUC-PR) of the validation queries' matches; NaN without them."""
+    if val_top is None:
+        return math.nan, math.nan
+    val = evaluate_matches(*val_top, pair.val_truth, pr_convention=cfg.pr_convention)
+    return val.recall_at_1, val.auc_pr
+
+
 def save_cell(
     logdir: Path,
     cfg: SweepConfig,
@@ -160,15 +170,16 @@ def save_cell(
     k: int,
     ds: int,
     top: TopK,
-    val_top: TopK,
+    val_top: TopK | None,
 ) -> ResultRow:
     """Evaluate one cell's matches (``top``: the test queries', ``val_top``: the validation
-    queries'), write its TensorBoard run, then its results.csv row (the row last: a run
-    without a row is redone by a resumed sweep). Returns the row."""
+    queries', None when the descriptors have none: NaN validation scores), write its
+    TensorBoard run, then its results.csv row (the row last: a run without a row is redone
+    by a resumed sweep). Returns the row."""
     name = run_name(pair.name, desc.method, k, ds, desc.objective)
     shutil.rmtree(logdir / name, ignore_errors=True)  # left by a crash before its row
     ev = evaluate_matches(*top, pair.truth, pr_convention=cfg.pr_convention)
-    val = evaluate_matches(*val_top, pair.val_truth, pr_convention=cfg.pr_convention)
+    val_recall_at_1, val_auc_pr = _validation_scores(cfg, pair, val_top)
     ci = cell_intervals(
         ev.best_scores,
         ev.best_correct,
@@ -196,8 +207,8 @@ def save_cell(
         recall_at_1_ci_high=ci.recall_at_1.high,
         auc_pr_ci_low=ci.auc_pr.low,
         auc_pr_ci_high=ci.auc_pr.high,
-        val_recall_at_1=val.recall_at_1,
-        val_auc_pr=val.auc_pr,
+        val_recall_at_1=val_recall_at_1,
+        val_auc_pr=val_auc_pr,
         selected=0,
         fit_seconds=desc.fit_seconds,
         encode_ms_per_image=desc.encode_ms_per_image,

@@ -7,6 +7,7 @@ second, and returns what the run needs. Nothing is written here.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from pathlib import Path
 from typing import NamedTuple
@@ -14,11 +15,12 @@ from typing import NamedTuple
 from vpr_jax.config import BENCHMARK_SOURCES, SequenceConfig, SweepConfig
 from vpr_jax.data import SEASON_ORDER, Benchmark, Route, load_data, load_train_route
 from vpr_jax.data.benchmark import BENCHMARK_PAIRS
+from vpr_jax.data.precomputed import read_precomputed
 from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
 from vpr_jax.method_table import SWEEPS_REMOVED_PCS, MethodInfo, resolve_methods
-from vpr_jax.outputs.logdir import prepare_logdir
+from vpr_jax.outputs.logdir import check_same_config, prepare_logdir
 from vpr_jax.progress import Log
 
 
@@ -97,9 +99,15 @@ def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
     return pairs
 
 
-def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int, log: Log) -> None:
+def fit_counts(
+    cfg: SweepConfig, n_train_images: int, n_pixels: int, given: frozenset[str], log: Log
+) -> SweepConfig:
     """The removed-PC counts and component counts the training set can serve: PCA of the
-    pair's ``n_train_images`` (both seasons), the season differences of its aligned places."""
+    pair's ``n_train_images`` (both seasons), the season differences of its aligned places.
+
+    Counts the user set on the command line (``given``) are refused when the training set
+    cannot serve them; defaults and a preset's values are trimmed to what it can, with one
+    note each: removed counts dropped, ``ica.n_components`` capped."""
     limit = min(n_train_images - 1, n_pixels)
     if "lda" in cfg.methods and cfg.lda.n_components > limit:
         log(
@@ -107,7 +115,49 @@ def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int, log: 
             f"components of {n_train_images} training images: lda whitens in all {limit}"
         )
     if not SWEEPS_REMOVED_PCS & set(cfg.methods):
-        return
+        return cfg
+    cfg = _trimmed(cfg, n_train_images, n_pixels, given, log)
+    check_components(cfg, n_train_images, n_pixels)
+    return cfg
+
+
+def _trimmed(
+    cfg: SweepConfig, n_train_images: int, n_pixels: int, given: frozenset[str], log: Log
+) -> SweepConfig:
+    """``cfg`` with the counts it did not get from the command line cut to what
+    ``n_train_images`` serve (``fit_counts``)."""
+    limit = min(n_train_images - 1, n_pixels)
+    why = f"PCA of {n_train_images} training images has {limit} components"
+    most = {"removed_pcs": limit - 1}
+    if "diff_pca" in cfg.methods:
+        most["removed_pcs"] = min(limit - 1, n_train_images // 2, n_pixels)
+        why += f" and {n_train_images // 2} aligned places span at most that many changes"
+    n_ica = cfg.ica.n_components
+    if "ica" in cfg.methods and n_ica != "all":
+        if "ica.n_components" in given and "removed_pcs" not in given:
+            most["removed_pcs"] = min(most["removed_pcs"], limit - n_ica)
+            why += f", {n_ica} of them for ICA (ica.n_components)"
+        elif "ica.n_components" not in given:
+            kept = [k for k in cfg.removed_pcs if k <= most["removed_pcs"]] or [0]
+            cap = limit - max(kept)
+            if n_ica > cap >= 1:
+                log(
+                    f"note: ica.n_components={n_ica} capped to {cap}: {why} and removed_pcs "
+                    f"goes up to {max(kept)} (set ica.n_components to choose)"
+                )
+                cfg = dataclasses.replace(cfg, ica=dataclasses.replace(cfg.ica, n_components=cap))
+    if "removed_pcs" not in given:
+        dropped = [k for k in cfg.removed_pcs if k > most["removed_pcs"]]
+        kept = tuple(k for k in cfg.removed_pcs if k <= most["removed_pcs"])
+        if dropped and kept:
+            log(f"note: removed_pcs {dropped} dropped: {why} (set removed_pcs to choose)")
+            cfg = dataclasses.replace(cfg, removed_pcs=kept)
+    return cfg
+
+
+def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> None:
+    """Refuse removed-PC and component counts the training set cannot serve."""
+    limit = min(n_train_images - 1, n_pixels)
     if max(cfg.removed_pcs) >= limit:
         raise UserError(
             f"removed_pcs={list(cfg.removed_pcs)} leaves no component: PCA of "
@@ -132,16 +182,25 @@ def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int, log: 
         )
 
 
-def make_plan(cfg: SweepConfig, log: Log) -> Plan:
+def check_precomputed_files(cfg: SweepConfig, bench: Benchmark) -> None:
+    """Read every set of outside descriptors once (``precomputed.*``): a file that cannot
+    serve the benchmark's images is one line now, not after the other methods ran."""
+    for name, files in cfg.precomputed.items():
+        for side, names in (("database", bench.db_names), ("queries", bench.query_names)):
+            read_precomputed(files, name, side, names, cfg.data.root)
+
+
+def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -> Plan:
     """Check pairs and logdir, load (and screen, and preprocess) the route or benchmark, split
-    the route, and check the removed-PC counts against the training set."""
+    the route, and fit the removed-PC counts to the training set (``fit_counts``; ``given``:
+    the keys set on the command line)."""
     logdir = Path(cfg.logdir).expanduser().resolve()
     benchmark = cfg.data.source in BENCHMARK_SOURCES
     if benchmark:
         pairs = resolve_benchmark_pair(cfg.season_pairs, cfg.data.source)
     else:
         pairs = resolve_pairs(cfg.season_pairs, cfg.data.seasons)
-    prepare_logdir(logdir, cfg)
+    prepare_logdir(logdir)
     if not cfg.sequence.enabled and cfg.sequence.ds != SequenceConfig().ds:
         log(
             f"note: sequence.ds={list(cfg.sequence.ds)} is ignored while sequence.enabled="
@@ -152,8 +211,9 @@ def make_plan(cfg: SweepConfig, log: Log) -> Plan:
     if not benchmark:
         route = preprocess_route(data, *prep)
         split = make_split(route.frame_ids, cfg.split)
-        check_components(cfg, 2 * len(split.train), int(route.images[pairs[0][0]][0].size), log)
+        cfg = fit_counts(cfg, 2 * len(split.train), route.images[pairs[0][0]][0].size, given, log)
         methods = resolve_methods(cfg.methods, True, cfg.data.source)
+        check_same_config(logdir, cfg)
         return Plan(cfg=cfg, logdir=logdir, pairs=pairs, route=route, split=split, methods=methods)
     bench = preprocess_benchmark(data, *prep)
     if len(bench.query) < 2:
@@ -175,8 +235,12 @@ def make_plan(cfg: SweepConfig, log: Log) -> Plan:
         route = preprocess_route(route, *prep)
         split = make_split(route.frame_ids, cfg.split)
         n_train = 2 * len(split.train)
-    check_components(cfg, n_train, int(bench.db[0].size), log)
-    methods = resolve_methods(cfg.methods, route is not None, cfg.data.source)
+    cfg = fit_counts(cfg, n_train, bench.db[0].size, given, log)
+    methods = resolve_methods(
+        cfg.methods, route is not None, cfg.data.source, tuple(cfg.precomputed)
+    )
+    check_precomputed_files(cfg, bench)
+    check_same_config(logdir, cfg)
     return Plan(
         cfg=cfg,
         logdir=logdir,

@@ -23,6 +23,7 @@ from vpr_jax.files import atomic_write_text, replace_folder
 from vpr_jax.method_table import SWEEPS_REMOVED_PCS
 from vpr_jax.methods import model_name
 from vpr_jax.outputs.logdir import ENCODERS_CSV, LISTING, fitted_root
+from vpr_jax.outputs.palette import compare_labels, label_of
 from vpr_jax.outputs.plots import correct_matches_figure, pr_curves_figure, recall_vs_ds_figure
 from vpr_jax.outputs.results import (
     ResultRow,
@@ -31,9 +32,10 @@ from vpr_jax.outputs.results import (
     read_results,
     selected_rows,
 )
-from vpr_jax.outputs.tb import SummaryCell, write_pair_summary
+from vpr_jax.outputs.tb import CompareSeries, SummaryCell, write_method_run, write_pair_summary
 
 SUMMARY = "summary"  # logdir/summary/<pair>: each pair's selected cells in one run
+COMPARE = "compare"  # logdir/compare/<method>: a run per method, its tags per pair
 Curves = Callable[[str], dict[str, np.ndarray]]  # run -> its curve.npz arrays
 
 
@@ -49,6 +51,7 @@ def write_report(logdir: Path, cfg: SweepConfig) -> None:
     figures = logdir / "figures"
     figures.mkdir(exist_ok=True)
     write_tb_summaries(logdir, rows, curve, cfg)
+    write_tb_compare(logdir, rows, curve, cfg)
     pr_curves_figure(
         rows,
         lambda row: (curve(row.run)["precision"], curve(row.run)["recall"]),
@@ -143,6 +146,46 @@ def write_tb_summaries(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: 
             staging, cells, pr_convention=cfg.pr_convention, n_thresholds=cfg.tb.pr_thresholds
         )
         replace_folder(staging, logdir / SUMMARY / pair)
+
+
+def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: SweepConfig):
+    """``LOGDIR/compare/<method>``: one run per method (``tb.write_method_run``) over the
+    single-image cells (the shortest ds), rewritten whole. Runs are written one after
+    another in ``palette.compare_labels`` order, which is how TensorBoard colours them
+    (``vpr_jax.outputs.palette``); a method without the removed-PC axis is a flat line over
+    its pair's counts."""
+    shortest = min(r.ds for r in rows)
+    single = [r for r in rows if r.ds == shortest]
+    staging = logdir / INCOMPLETE / COMPARE
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    for label in compare_labels(single):
+        series = {}
+        for pair in dict.fromkeys(r.season_pair for r in single):
+            mine = sorted(
+                (r for r in single if r.season_pair == pair and label_of(r) == label),
+                key=lambda r: r.removed_pcs,
+            )
+            if not mine:
+                continue
+            counts = sorted({r.removed_pcs for r in single if r.season_pair == pair})
+            points = [(r.removed_pcs, r.recall_at_1, r.auc_pr) for r in mine]
+            if mine[0].method not in SWEEPS_REMOVED_PCS:
+                points = [(k, mine[0].recall_at_1, mine[0].auc_pr) for k in counts]
+            chosen = curve(next(r for r in mine if r.selected).run)
+            series[pair] = CompareSeries(
+                points=points,
+                best_scores=chosen["best_scores"],
+                best_correct=chosen["best_correct"],
+                has_match=chosen["has_match"],
+            )
+        write_method_run(
+            staging / label,
+            series,
+            pr_convention=cfg.pr_convention,
+            n_thresholds=cfg.tb.pr_thresholds,
+        )
+    replace_folder(staging, logdir / COMPARE)
 
 
 def differences_to_pca(

@@ -18,7 +18,7 @@ from jax.sharding import Mesh
 
 from experiments.cells import INCOMPLETE, log_cell, match, save_cell
 from experiments.plan import Plan
-from experiments.report import SUMMARY, write_report
+from experiments.report import COMPARE, SUMMARY, write_report
 from vpr_jax.config import MeshConfig, SweepConfig
 from vpr_jax.data.pair import PairData, benchmark_pair, pair_data
 from vpr_jax.data.preprocess import describe_preprocessing
@@ -172,8 +172,9 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)  # empty once every cell moved out
     log(
         f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; compare the methods "
-        f"with: tensorboard --logdir {logdir / SUMMARY} (every cell: tensorboard --logdir "
-        f"{logdir})"
+        f"with: tensorboard --logdir {logdir / COMPARE} (a run per pair: --logdir "
+        f"{logdir / SUMMARY}; every cell: --logdir {logdir}); take results out with: python "
+        f"-m experiments.export {logdir}"
     )
     return logdir
 
@@ -203,7 +204,7 @@ def _run_pair(
         if not left:
             continue
         if data is None:  # built on first use
-            data = _pair(plan, db, query)
+            data = load_pair(plan, db, query)
         if method.uses_pca_fit and ctx.pca_fit is None:  # one fit per pair
             ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
         todo_ctx = ctx._replace(
@@ -241,7 +242,7 @@ def _save_fitted(
     save_fitted(folder / fitted.folder, fitted.encode, state, description)
 
 
-def _pair(plan: Plan, db: str, query: str) -> PairData:
+def load_pair(plan: Plan, db: str, query: str) -> PairData:
     """The images and ground truth of one pair: of the route, or the benchmark's."""
     cfg = plan.cfg
     if plan.benchmark is not None:
@@ -263,6 +264,8 @@ def _save_descriptors(
     warning = desc.warning
 
     def matches(k: int, ds: int, part: str):
+        if part == "val" and desc.val_db is None:  # outside descriptors of route places
+            return None
         if ds > 1:
             return match(desc, data, ds, (k,), cfg, mesh, part)[0]
         if part not in single:

@@ -21,16 +21,18 @@ from pathlib import Path
 
 # Only light modules here (no JAX): bad input is answered before JAX, Flax and orbax load.
 from experiments.plan import make_plan
-from vpr_jax.config import SweepConfig, parse_config
+from vpr_jax.config import SweepConfig, given_keys, parse_config
 from vpr_jax.errors import UserError
 from vpr_jax.outputs.results import read_results
 from vpr_jax.progress import RunLog
 
 
-def run_sweep(cfg: SweepConfig) -> Path:
-    """Validate config, logdir and data, then run every cell not yet in results.csv."""
+def run_sweep(cfg: SweepConfig, given: frozenset[str] = frozenset()) -> Path:
+    """Validate config, logdir and data, then run every cell not yet in results.csv.
+    ``given``: the keys set on the command line (defaults and presets may be trimmed to the
+    data, these are refused)."""
     log = RunLog()
-    plan = make_plan(cfg, log)
+    plan = make_plan(cfg, log, given)
 
     from experiments.run import run_cells  # JAX, Flax, orbax: once the cheap checks pass
 
@@ -107,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = None
     try:
         cfg = parse_config(argv)
-        run_sweep(cfg)
+        run_sweep(cfg, given_keys(argv))
     except UserError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -102,3 +102,54 @@ def random_case(seed, nq=40, ndb=60, ties=False, all_match=False):
     if ties:
         sim = np.round(sim, 1)
     return sim, query_ids, db_ids
+
+
+N_PLACES = 120  # places of write_vpr_bench's route
+
+
+def u8(image: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(image * 255), 0, 255).astype(np.uint8)
+
+
+def write_vpr_bench(root: Path, route, *, drop_rows=(), skew=0) -> tuple[list, list]:
+    """``root/ref`` (summer, 64x32 grey PNGs named so that string order is not numeric
+    order), ``root/query`` (every 2nd fall frame, colour JPEG-free PNGs at 128x64) and
+    ``ground_truth_new.npy``: query n's references are the frames within +-1 of its place
+    (``skew`` shifts them: wrong on purpose). Returns the (ref, query) file names in
+    VPR-Bench's order and the ground-truth rows written."""
+    (root / "ref").mkdir(parents=True)
+    (root / "query").mkdir()
+    for i in range(N_PLACES):
+        cv2.imwrite(str(root / "ref" / f"r{i}.png"), u8(route.images["summer"][i]))
+    places = list(range(0, N_PLACES, 2))
+    for n, i in enumerate(places):
+        big = cv2.resize(u8(route.images["fall"][i]), (128, 64), interpolation=cv2.INTER_NEAREST)
+        cv2.imwrite(str(root / "query" / f"q{n:03d}.png"), cv2.cvtColor(big, cv2.COLOR_GRAY2BGR))
+    refs = sorted(f"r{i}.png" for i in range(N_PLACES))  # r0, r1, r10, r100, ...
+    position = {name: k for k, name in enumerate(refs)}
+    rows = []
+    for n, i in enumerate(places):
+        if n in drop_rows:
+            continue
+        near = [
+            position[f"r{j}.png"]
+            for j in (i - 1 + skew, i + skew, i + 1 + skew)
+            if 0 <= j < N_PLACES
+        ]
+        rows.append((n, near))
+    table = np.empty(len(rows), dtype=object)
+    for r, row in enumerate(rows):
+        table[r] = row
+    np.save(root / "ground_truth_new.npy", table, allow_pickle=True)
+    return refs, [f"q{n:03d}.png" for n in range(len(places))], rows
+
+
+def read_grey(path: Path) -> np.ndarray:
+    """The reference reader: any image as 64x32 grey in [0, 1] (area interpolation)."""
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    image = image.astype(np.float32) / np.float32(255)
+    if image.shape != (32, 64):
+        image = cv2.resize(image, (64, 32), interpolation=cv2.INTER_AREA)
+    return image.reshape(-1).astype(np.float64)

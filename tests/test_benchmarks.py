@@ -13,65 +13,16 @@ import numpy as np
 import pytest
 
 from tests.conftest import assert_one_line_error, run_cli
-from tests.inputs import write_release
+from tests.inputs import N_PLACES, read_grey, u8, write_release, write_vpr_bench
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.outputs.results import read_results
 
-N_PLACES = 120
 RAW = ["methods=[raw]"]
-
-
-def _u8(image: np.ndarray) -> np.ndarray:
-    return np.clip(np.rint(image * 255), 0, 255).astype(np.uint8)
 
 
 @pytest.fixture(scope="module")
 def route():
     return synthetic_route(N_PLACES, ("summer", "fall"), seed=3)
-
-
-def write_vpr_bench(root: Path, route, *, drop_rows=(), skew=0) -> tuple[list, list]:
-    """``root/ref`` (summer, 64x32 grey PNGs named so that string order is not numeric
-    order), ``root/query`` (every 2nd fall frame, colour JPEG-free PNGs at 128x64) and
-    ``ground_truth_new.npy``: query n's references are the frames within +-1 of its place
-    (``skew`` shifts them: wrong on purpose). Returns the (ref, query) file names in
-    VPR-Bench's order and the ground-truth rows written."""
-    (root / "ref").mkdir(parents=True)
-    (root / "query").mkdir()
-    for i in range(N_PLACES):
-        cv2.imwrite(str(root / "ref" / f"r{i}.png"), _u8(route.images["summer"][i]))
-    places = list(range(0, N_PLACES, 2))
-    for n, i in enumerate(places):
-        big = cv2.resize(_u8(route.images["fall"][i]), (128, 64), interpolation=cv2.INTER_NEAREST)
-        cv2.imwrite(str(root / "query" / f"q{n:03d}.png"), cv2.cvtColor(big, cv2.COLOR_GRAY2BGR))
-    refs = sorted(f"r{i}.png" for i in range(N_PLACES))  # r0, r1, r10, r100, ...
-    position = {name: k for k, name in enumerate(refs)}
-    rows = []
-    for n, i in enumerate(places):
-        if n in drop_rows:
-            continue
-        near = [
-            position[f"r{j}.png"]
-            for j in (i - 1 + skew, i + skew, i + 1 + skew)
-            if 0 <= j < N_PLACES
-        ]
-        rows.append((n, near))
-    table = np.empty(len(rows), dtype=object)
-    for r, row in enumerate(rows):
-        table[r] = row
-    np.save(root / "ground_truth_new.npy", table, allow_pickle=True)
-    return refs, [f"q{n:03d}.png" for n in range(len(places))], rows
-
-
-def read_grey(path: Path) -> np.ndarray:
-    """The reference reader: any image as 64x32 grey in [0, 1] (area interpolation)."""
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    image = image.astype(np.float32) / np.float32(255)
-    if image.shape != (32, 64):
-        image = cv2.resize(image, (64, 32), interpolation=cv2.INTER_AREA)
-    return image.reshape(-1).astype(np.float64)
 
 
 def reference_recall(db_paths, query_paths, correct_sets) -> float:
@@ -132,12 +83,12 @@ def write_positions(root: Path, route, rng) -> tuple[np.ndarray, np.ndarray]:
         (root / side).mkdir(parents=True)
     db_rows, q_rows = [], []
     for i in range(N_PLACES):
-        cv2.imwrite(str(root / "database" / f"{i:04d}.png"), _u8(route.images["summer"][i]))
+        cv2.imwrite(str(root / "database" / f"{i:04d}.png"), u8(route.images["summer"][i]))
         db_rows.append((f"{i:04d}.png", *xy[i]))
     places = np.arange(0, N_PLACES, 3)
     q_xy = xy[places] + rng.normal(0, 6, (len(places), 2))
     for n, i in enumerate(places):
-        image = cv2.cvtColor(_u8(route.images["fall"][i]), cv2.COLOR_GRAY2BGR)
+        image = cv2.cvtColor(u8(route.images["fall"][i]), cv2.COLOR_GRAY2BGR)
         cv2.imwrite(str(root / "queries" / f"{n:04d}.png"), image)
         q_rows.append((f"{n:04d}.png", *q_xy[n]))
     for side, rows in (("database", db_rows), ("queries", q_rows)):
@@ -200,8 +151,8 @@ def test_an_aligned_route_trains_what_learns_from_alignment(route, tmp_path):
 
 def test_nordland_star_from_a_tiny_release(route, tmp_path):
     frames = {
-        "summer": [_u8(im) for im in route.images["summer"]],
-        "winter": [_u8(im) for im in route.images["fall"]],
+        "summer": [u8(im) for im in route.images["summer"]],
+        "winter": [u8(im) for im in route.images["fall"]],
     }
     root = write_release(tmp_path / "release", frames)  # images-00001 ... images-00120
     proc = run_cli(
@@ -231,7 +182,7 @@ def test_nordland_star_from_a_tiny_release(route, tmp_path):
 
 def test_nordland_clean_reads_its_frame_range(route, tmp_path):
     seasons = ("spring", "summer", "fall", "winter")
-    images = [_u8(im) for im in route.images["summer"]]
+    images = [u8(im) for im in route.images["summer"]]
     root = write_release(tmp_path / "release", {s: images for s in seasons})
     proc = run_cli(
         "preset=nordland_clean",
@@ -362,7 +313,7 @@ def test_sequences_of_a_benchmark_follow_its_file_order(route, tmp_path):
     for side, season in (("ref", "summer"), ("query", "fall")):
         (root / side).mkdir(parents=True)
         for i in range(N_PLACES):
-            cv2.imwrite(str(root / side / f"{i:04d}.png"), _u8(route.images[season][i]))
+            cv2.imwrite(str(root / side / f"{i:04d}.png"), u8(route.images[season][i]))
     table = np.empty(N_PLACES, dtype=object)
     for i in range(N_PLACES):
         table[i] = (i, [j for j in (i - 1, i, i + 1) if 0 <= j < N_PLACES])

@@ -25,7 +25,7 @@ from vpr_jax.config import parse_config
 from vpr_jax.errors import UserError
 from vpr_jax.method_table import METHODS, plugin_info, resolve_methods
 from vpr_jax.methods.plugin import checked_encode
-from vpr_jax.outputs.logdir import config_yaml, prepare_logdir
+from vpr_jax.outputs.logdir import check_same_config, config_yaml
 from vpr_jax.outputs.results import COLUMNS, read_results
 
 # raw pixels, again: the training mean subtracted, the pixels flattened; its fit writes what
@@ -188,7 +188,7 @@ def test_a_method_that_needs_alignment_is_refused_without_aligned_places(tmp_pat
     _module(tmp_path, "aligned_only", CENTRED_PIXELS + "\ncentred_pixels.needs_alignment = True\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     (info,) = resolve_methods(("aligned_only:centred_pixels",), True, "synthetic")
-    assert info.needs_alignment and info.name == "centred_pixels" and info.colour
+    assert info.needs_alignment and info.name == "centred_pixels"
     with pytest.raises(UserError, match="needs_alignment.*data.source=vpr_bench.*train_source"):
         resolve_methods(("aligned_only:centred_pixels",), False, "vpr_bench")
     assert resolve_methods(("raw", "lda"), True, "synthetic") == (METHODS["raw"], METHODS["lda"])
@@ -199,8 +199,8 @@ def test_adding_a_method_of_your_own_extends_a_logdir(tmp_path):
     logdir.mkdir()
     before = parse_config(["methods=[raw,a.b:first]", "plugin.first.alpha=1", f"logdir={logdir}"])
     (logdir / "config.yaml").write_text(config_yaml(before))
-    prepare_logdir(logdir, before)
+    check_same_config(logdir, before)
     added = ["methods=[raw,a.b:first,c.d:second]", "plugin.second.beta=2", f"logdir={logdir}"]
-    prepare_logdir(logdir, parse_config([*added, "plugin.first.alpha=1"]))  # accepted
+    check_same_config(logdir, parse_config([*added, "plugin.first.alpha=1"]))  # accepted
     with pytest.raises(UserError, match=r"differs in plugin\.first"):
-        prepare_logdir(logdir, parse_config([*added, "plugin.first.alpha=2"]))
+        check_same_config(logdir, parse_config([*added, "plugin.first.alpha=2"]))

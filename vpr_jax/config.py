@@ -539,6 +539,9 @@ class SweepConfig:
     tb: TensorBoardConfig = field(default_factory=TensorBoardConfig)
     # Settings of your own methods: plugin.<name>.<key>=<value> reaches its fit as key=value.
     plugin: dict[str, dict[str, Any]] = field(default_factory=dict)
+    # Descriptors computed elsewhere, per set: precomputed.<name>.database=PATH and
+    # .queries=PATH (or precomputed.database / .queries / .name for one set); benchmarks only.
+    precomputed: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
         _as_tuple(self, "methods")
@@ -555,6 +558,7 @@ class SweepConfig:
                 f"plugin.{name}.* is set but methods names no method {name} (as "
                 f"module:{name}): add it to methods=[...] or drop the setting",
             )
+        self._check_precomputed()
         negative = [k for k in self.removed_pcs if k < 0]
         _check(
             not negative,
@@ -572,6 +576,30 @@ class SweepConfig:
             self.preprocess in PREPROCESSES,
             f"preprocess={self.preprocess} is unknown: use one of {', '.join(PREPROCESSES)}",
         )
+
+    def _check_precomputed(self) -> None:
+        """``precomputed.*`` as {name: {"database": absolute path, "queries": ...}}; the
+        ``precomputed`` entry of ``methods`` (optional) needs a set and is dropped."""
+        sets = precomputed_sets(self.precomputed)
+        asked = method_table.PRECOMPUTED.name in self.methods
+        _check(
+            bool(sets) or not asked,
+            "methods names precomputed but no descriptors are given: set "
+            "precomputed.database=PATH and precomputed.queries=PATH (.npy files)",
+        )
+        methods = tuple(m for m in self.methods if m != method_table.PRECOMPUTED.name)
+        _check(bool(methods) or bool(sets), "methods is empty: e.g. methods=[raw,pca]")
+        problem = method_table.check_precomputed(tuple(sets), methods, OBJECTIVES)
+        _check(problem is None, problem or "")
+        _check(
+            not sets or self.data.source in BENCHMARK_SOURCES,
+            f"precomputed descriptors are scored on benchmark sources "
+            f"({', '.join(BENCHMARK_SOURCES)}), data.source={self.data.source} is an aligned "
+            "route: arrange its frames as a vpr_bench folder (ref/, query/, "
+            "ground_truth_new.npy) to score outside descriptors on them",
+        )
+        object.__setattr__(self, "precomputed", sets)
+        object.__setattr__(self, "methods", methods)
 
     @property
     def sequence_lengths(self) -> tuple[int, ...]:
@@ -606,6 +634,37 @@ def _normalise_cli(argv: list[str]) -> list[str]:
     return out
 
 
+def precomputed_sets(value: dict) -> dict[str, dict[str, str]]:
+    """``precomputed.*`` settings as {set name: {"database": path, "queries": path}}, the
+    paths absolute. One set may be written flat (``precomputed.database``, ``.queries``,
+    ``.name``; named ``precomputed`` by default), several as ``precomputed.<name>.*``."""
+    value = dict(value or {})
+    flat = {k: value.pop(k) for k in ("database", "queries", "name") if k in value}
+    _check(
+        not (flat and value),
+        f"precomputed.{next(iter(flat), '')} and precomputed.{next(iter(value), '')}.* "
+        "cannot be mixed: write every set as precomputed.<name>.database=PATH and "
+        "precomputed.<name>.queries=PATH",
+    )
+    if flat:
+        value = {str(flat.pop("name", "precomputed")): flat}
+    sets = {}
+    for name, paths in value.items():
+        form = f"write precomputed.{name}.database=PATH and precomputed.{name}.queries=PATH"
+        _check(isinstance(paths, dict), f"precomputed.{name}={paths!r} is not a set: {form}")
+        missing = [s for s in ("database", "queries") if not paths.get(s)]
+        extra = sorted(set(paths) - {"database", "queries"})
+        _check(not missing, f"precomputed set {name!r} has no {' or '.join(missing)}: {form}")
+        _check(not extra, f"precomputed.{name}.{extra[0] if extra else ''} is unknown: {form}")
+        sets[str(name)] = {s: str(Path(str(paths[s])).expanduser().resolve()) for s in paths}
+    return sets
+
+
+def given_keys(argv: list[str]) -> frozenset[str]:
+    """The dotted keys ``key=value`` arguments set (``ica.n_components``, ``removed_pcs``)."""
+    return frozenset(arg.partition("=")[0] for arg in argv)
+
+
 def _first_line(err: OmegaConfBaseException) -> str:
     lines = str(err).splitlines()
     key = next((ln.split(":", 1)[1].strip() for ln in lines if "full_key:" in ln), "")
@@ -638,6 +697,16 @@ def parse_config(argv: list[str]) -> SweepConfig:
     return without_aligned_learning(cfg, asked)
 
 
+def config_from_dict(saved: dict) -> SweepConfig:
+    """A config saved as plain data (a logdir's config.yaml, without its format) as the
+    typed config it was."""
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(SweepConfig), saved)
+        return OmegaConf.to_object(merged)
+    except OmegaConfBaseException as err:
+        raise UserError(f"bad saved config: {_first_line(err)}: rerun the sweep") from None
+
+
 def without_aligned_learning(cfg: SweepConfig, asked: set[str]) -> SweepConfig:
     """A benchmark without aligned training places (no ``data.train_source``): the methods
     and objectives that learn from the alignment are left out of the defaults; asked for by
@@ -661,7 +730,7 @@ def without_aligned_learning(cfg: SweepConfig, asked: set[str]) -> SweepConfig:
         kept = tuple(o for o in objectives if o != "cross_season") or ("reconstruct",)
         changes[model] = dataclasses.replace(getattr(cfg, model), objective=kept)
     _check(
-        bool(changes["methods"]),
+        bool(changes["methods"]) or bool(cfg.precomputed),
         f"methods={list(cfg.methods)} all learn from aligned "
         f"training places, which {source} does not have: {fix}",
     )

@@ -12,13 +12,17 @@ Two ways in, one list of methods:
 - a user's method is ``methods=[...,package.module:name]``: an object with ``fit(train,
   aligned, key, **settings) -> state`` and ``encode(state, images) -> (n, d)``
   (``vpr_jax.methods.plugin``). Its row, run and folder are named ``name``.
+
+And one source of descriptors that is not a fitted method: ``PRECOMPUTED``, descriptors
+computed elsewhere and read from ``.npy`` files (``precomputed.<name>.database=PATH``,
+``precomputed.<name>.queries=PATH``; ``vpr_jax.methods.precomputed``). Each set is a row
+named ``<name>``; it fits nothing, so nothing is saved or exported as an encoder.
 """
 
 from __future__ import annotations
 
 import importlib
 import re
-import zlib
 from typing import Any, NamedTuple
 
 from vpr_jax.errors import UserError, first_line
@@ -27,12 +31,12 @@ from vpr_jax.errors import UserError, first_line
 class MethodInfo(NamedTuple):
     name: str  # results.csv's method column; the runs' and fitted states' folder names
     describe: str  # "module:function" of its describe(pair, cfg, ctx) -> Descriptors
-    colour: str  # its line and bars in every figure
     sweeps_removed_pcs: bool = False  # one cell per removed-PC count (one fit serves them)
     needs_alignment: bool = False  # learns from aligned training places of two seasons
     uses_pca_fit: bool = False  # its context carries the pair's shared PCA fit
     trained: bool = False  # an auto-encoder: an objective axis, epochs, training checkpoints
     plugin: str = ""  # a user's method: its "module:name"; "" for the built-in ones
+    precomputed: bool = False  # descriptors made elsewhere: nothing fitted, saved or exported
 
 
 _LINEAR, _AE = "vpr_jax.methods.linear", "vpr_jax.methods.autoencoders"
@@ -40,56 +44,53 @@ BUILTIN: tuple[MethodInfo, ...] = (
     MethodInfo(
         name="raw",
         describe=f"{_LINEAR}:describe_raw",
-        colour="#7f7f7f",
     ),
     MethodInfo(
         name="pca",
         describe=f"{_LINEAR}:describe_pca",
-        colour="#1f77b4",
         sweeps_removed_pcs=True,
         uses_pca_fit=True,
     ),
     MethodInfo(
         name="diff_pca",
         describe=f"{_LINEAR}:describe_diff_pca",
-        colour="#17becf",
         sweeps_removed_pcs=True,
         needs_alignment=True,
     ),
     MethodInfo(
         name="ica",
         describe=f"{_LINEAR}:describe_ica",
-        colour="#2ca02c",
         sweeps_removed_pcs=True,
         uses_pca_fit=True,
     ),
     MethodInfo(
         name="lda",
         describe=f"{_LINEAR}:describe_lda",
-        colour="#9467bd",
         needs_alignment=True,
         uses_pca_fit=True,
     ),
     MethodInfo(
         name="fae",
         describe=f"{_AE}:describe_fae",
-        colour="#d62728",
         trained=True,
     ),
     MethodInfo(
         name="cae",
         describe=f"{_AE}:describe_cae",
-        colour="#ff7f0e",
         trained=True,
     ),
+)
+# Descriptors computed elsewhere: a source, not a method the suite fits (see the docstring).
+PRECOMPUTED = MethodInfo(
+    name="precomputed",
+    describe="vpr_jax.methods.precomputed:describe_precomputed",
+    precomputed=True,
 )
 METHODS: dict[str, MethodInfo] = {m.name: m for m in BUILTIN}
 NAMES: tuple[str, ...] = tuple(METHODS)
 SWEEPS_REMOVED_PCS = frozenset(m.name for m in BUILTIN if m.sweeps_removed_pcs)
 NEEDS_ALIGNED = tuple(m.name for m in BUILTIN if m.needs_alignment)
 TRAINED = frozenset(m.name for m in BUILTIN if m.trained)
-# Lines of users' methods, one per name (stable across runs and figures).
-PLUGIN_COLOURS = ("#e377c2", "#8c564b", "#bcbd22", "#393b79", "#637939", "#843c39")
 PLUGIN_DESCRIBE = "vpr_jax.methods.plugin:describe_plugin"
 
 # What a method that learns from aligned places is told on data without them.
@@ -105,6 +106,13 @@ def is_plugin(method: str) -> bool:
     return ":" in method
 
 
+def model_name(method: str, objective: str = "") -> str:
+    """``fae`` for the seed's objective (and methods without one), ``fae_cross_season``
+    otherwise: names the cell's run, the model's checkpoint folder, its training run, its
+    method-by-method run and its legend entry."""
+    return method if objective in ("", "reconstruct") else f"{method}_{objective}"
+
+
 def plugin_name(spec: str) -> str:
     """The name a user's method goes by: the part after the colon."""
     return spec.rsplit(":", 1)[1]
@@ -114,7 +122,7 @@ def check_methods(methods: tuple[str, ...], objectives: tuple[str, ...]) -> str 
     """What is wrong with ``methods=[...]`` (built-in names and ``module:name`` entries), as
     one line naming the fix, or None. ``objectives``: the auto-encoders' objectives, whose
     run names (``fae_cross_season``) a plugin may not take."""
-    unknown = [m for m in methods if not is_plugin(m) and m not in METHODS]
+    unknown = [m for m in methods if not is_plugin(m) and m not in (*METHODS, PRECOMPUTED.name)]
     if unknown:
         return (
             f"methods={list(methods)} names unknown {unknown}: choose from {', '.join(NAMES)}, "
@@ -143,24 +151,42 @@ def check_methods(methods: tuple[str, ...], objectives: tuple[str, ...]) -> str 
     return None
 
 
+_SET_NAME = re.compile(r"^[A-Za-z_]\w*$")
+
+
+def check_precomputed(names: tuple[str, ...], methods: tuple[str, ...], objectives) -> str | None:
+    """What is wrong with the names of ``precomputed.<name>`` sets, as one line, or None:
+    each a plain name that no built-in method, run or user's method of ``methods`` has."""
+    taken = {*NAMES, *(f"{m}_{o}" for m in TRAINED for o in objectives)}
+    taken |= {plugin_name(m) for m in methods if is_plugin(m)}
+    for name in names:
+        if not _SET_NAME.match(name):
+            return (
+                f"precomputed set name {name!r} is not a plain name: use letters, digits and "
+                "_ (precomputed.netvlad.database=PATH)"
+            )
+        if name in taken:
+            return (
+                f"precomputed set {name!r} has the name of a method of this sweep: name it "
+                "another way (precomputed.name=NAME, or precomputed.<NAME>.database=PATH)"
+            )
+    return None
+
+
+def precomputed_info(name: str) -> MethodInfo:
+    """A set of outside descriptors as a row of the table."""
+    return PRECOMPUTED._replace(name=name)
+
+
 def plugin_info(spec: str, needs_alignment: bool) -> MethodInfo:
     """A user's method as a row of the table."""
     name = plugin_name(spec)
     return MethodInfo(
         name=name,
         describe=PLUGIN_DESCRIBE,
-        colour=colour_of(name),
         needs_alignment=needs_alignment,
         plugin=spec,
     )
-
-
-def colour_of(method: str) -> str:
-    """The figure colour of a results row's method: the table's, or one of PLUGIN_COLOURS
-    chosen by the name."""
-    if method in METHODS:
-        return METHODS[method].colour
-    return PLUGIN_COLOURS[zlib.crc32(method.encode()) % len(PLUGIN_COLOURS)]
 
 
 def load_plugin(spec: str) -> Any:
@@ -189,10 +215,12 @@ def load_plugin(spec: str) -> Any:
     return obj
 
 
-def resolve_methods(methods: tuple[str, ...], aligned: bool, source: str) -> tuple[MethodInfo, ...]:
-    """The table rows of ``methods=[...]``, users' methods imported and checked; one that
-    needs aligned training places on data without them (``aligned`` False) is refused the way
-    a named diff_pca is."""
+def resolve_methods(
+    methods: tuple[str, ...], aligned: bool, source: str, precomputed: tuple[str, ...] = ()
+) -> tuple[MethodInfo, ...]:
+    """The table rows of ``methods=[...]``, users' methods imported and checked, then the
+    ``precomputed`` sets' rows; a method that needs aligned training places on data without
+    them (``aligned`` False) is refused the way a named diff_pca is."""
     out = []
     for method in methods:
         if not is_plugin(method):
@@ -205,13 +233,13 @@ def resolve_methods(methods: tuple[str, ...], aligned: bool, source: str) -> tup
                 f"which data.source={source} does not have: {ALIGNED_FIX}"
             )
         out.append(plugin_info(method, needs))
-    return tuple(out)
+    return (*out, *(precomputed_info(name) for name in precomputed))
 
 
 def describe_function(info: MethodInfo):
     """The runner's ``describe(pair, cfg, ctx)`` of a table row, imported now."""
     module_name, name = info.describe.split(":")
     function = getattr(importlib.import_module(module_name), name)
-    if info.plugin:
+    if info.plugin or info.precomputed:
         return lambda pair, cfg, ctx: function(info, pair, cfg, ctx)
     return function

@@ -41,6 +41,8 @@ class Benchmark(NamedTuple):
     truth: MatchSets
     db_ids: np.ndarray
     query_ids: np.ndarray
+    db_names: np.ndarray  # (n_db,) each image's path relative to data.root (Route.names)
+    query_names: np.ndarray
 
     @property
     def pair(self) -> tuple[str, str]:
@@ -64,4 +66,6 @@ def star_partition(route: Route, db: str = "winter", query: str = "summer") -> B
         truth=truth._replace(source=f"+-{STAR_TOLERANCE} frame (Nordland*)"),
         db_ids=route.frame_ids,
         query_ids=route.frame_ids[picks],
+        db_names=route.names(db),
+        query_names=route.names(query)[picks],
     )

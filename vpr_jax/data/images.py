@@ -140,6 +140,12 @@ def note_colour(colour: dict[str, int], log: Log) -> None:
 READ_EXTENSIONS = (*IMAGE_EXTENSIONS, ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
 
 
+def relative_names(paths: list[Path], root: Path) -> np.ndarray:
+    """(N,) the files' paths relative to ``root`` (``data.root``), as ``/``-separated text:
+    how exported retrieval lists name the images."""
+    return np.array([p.relative_to(root).as_posix() for p in paths], dtype=object)
+
+
 def list_images(folder: Path, what: str) -> list[Path]:
     """The image files in ``folder``, sorted by file name (Python's ``sorted``, as
     VPR-Bench lists them); hidden files and other extensions are left out."""

@@ -42,6 +42,7 @@ from vpr_jax.data.images import (
     is_image_file,
     note_colour,
     read_images,
+    relative_names,
     to_unit_float,
 )
 from vpr_jax.data.route import IMAGE_SHAPE, Route
@@ -154,15 +155,16 @@ def _read_image_folders(
         log,
         frame_range,
     )
-    images, colour = {}, {}
+    images, colour, names = {}, {}, {}
     for season, by_id in files.items():
         paths = [by_id[int(i)] for i in ids]
         images[season], colour[season] = read_images(
             paths, season, resize=resize, max_pixels=max_pixels
         )
+        names[season] = relative_names(paths, root)
     note_colour(colour, log)
     log(_summary(source, ids, seasons, root))
-    return Route(ids, images)
+    return Route(ids, images, names)
 
 
 def read_videos(

@@ -15,6 +15,16 @@ from vpr_jax.data.route import Route
 from vpr_jax.data.splits import Split
 
 
+class Names(NamedTuple):
+    """What each image of a pair is called outside the suite (``Route.names``): (n,) text
+    arrays, in the rows of ``PairData``'s database, queries and validation places."""
+
+    db: np.ndarray
+    query: np.ndarray
+    val_db: np.ndarray
+    val_query: np.ndarray
+
+
 class PairData(NamedTuple):
     """One pair's images and ground truth: what every method fits on and is scored with.
 
@@ -39,6 +49,7 @@ class PairData(NamedTuple):
     val_query_ids: np.ndarray
     val_truth: GroundTruth
     aligned_training: bool = True  # train (and val) are two seasons' aligned places
+    names: Names | None = None  # the images' names: export and outside descriptors use them
 
     @property
     def val(self) -> np.ndarray:
@@ -87,6 +98,12 @@ def pair_data(
         val_db_ids=val_ids,
         val_query_ids=val_ids,
         val_truth=Tolerance.of(val_ids, val_ids, tolerance),
+        names=Names(
+            db=route.names(db) if everything else route.names(db)[split.test],
+            query=route.names(query)[split.test],
+            val_db=route.names(db)[split.val],
+            val_query=route.names(query)[split.val],
+        ),
     )
 
 
@@ -116,6 +133,12 @@ def benchmark_pair(
             val_db_ids=val_ids,
             val_query_ids=val_ids,
             val_truth=Tolerance.of(val_ids, val_ids, cfg.tolerance),
+            names=Names(
+                db=bench.db_names,
+                query=bench.query_names,
+                val_db=route.names(a)[split.val],
+                val_query=route.names(b)[split.val],
+            ),
         )
     n_query = len(bench.query)
     n_val = min(max(1, round(cfg.split.val_fraction * n_query)), n_query - 1)
@@ -135,4 +158,10 @@ def benchmark_pair(
         val_query_ids=bench.query_ids[val],
         val_truth=bench.truth.take(val),
         aligned_training=False,
+        names=Names(
+            db=bench.db_names,
+            query=bench.query_names[test],
+            val_db=bench.db_names,
+            val_query=bench.query_names[val],
+        ),
     )

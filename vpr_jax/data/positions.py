@@ -20,7 +20,7 @@ import numpy as np
 
 from vpr_jax.data.benchmark import Benchmark
 from vpr_jax.data.ground_truth import within_radius
-from vpr_jax.data.images import list_images, note_colour, read_images
+from vpr_jax.data.images import list_images, note_colour, read_images, relative_names
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Log
 from vpr_jax.shapes import MAX_PIXELS
@@ -73,6 +73,8 @@ def read_positions(
         truth=truth,
         db_ids=np.arange(len(paths["database"])),
         query_ids=np.arange(len(paths["queries"])),
+        db_names=relative_names(paths["database"], root),
+        query_names=relative_names(paths["queries"], root),
     )
 
 

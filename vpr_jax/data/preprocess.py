@@ -90,9 +90,8 @@ def preprocess_route(
     """The route every method sees: as loaded (``none``) or patch-normalised."""
     if not _announce(preprocess, size, rounded, log):
         return route
-    return Route(
-        route.frame_ids, {s: patch_normalize(im, size, rounded) for s, im in route.images.items()}
-    )
+    images = {s: patch_normalize(im, size, rounded) for s, im in route.images.items()}
+    return Route(route.frame_ids, images, route.files)  # not _replace: Route has its own len
 
 
 def preprocess_benchmark(

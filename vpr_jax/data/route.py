@@ -21,10 +21,25 @@ class Route(NamedTuple):
 
     frame_ids: (N,) int64, strictly increasing original frame indices (ground truth uses them).
     images: season name -> (N, 32, 64) float32 in [0, 1].
+    files: season name -> (N,) the image files' paths relative to ``data.root``, for routes
+    read from image files; None for rendered or decoded frames.
     """
 
     frame_ids: np.ndarray
     images: dict[str, np.ndarray]
+    files: dict[str, np.ndarray] | None = None
+
+    def names(self, season: str) -> np.ndarray:
+        """(N,) what each frame of ``season`` is called outside the suite: its file's path
+        relative to ``data.root``, or ``<season>/<frame id>`` (the built-in route, videos)."""
+        if self.files is not None:
+            return self.files[season]
+        return np.array([f"{season}/{int(i)}" for i in self.frame_ids], dtype=object)
+
+    def take(self, rows: np.ndarray) -> Route:
+        """The frames at ``rows`` (indices or a mask) of every season."""
+        files = None if self.files is None else {s: f[rows] for s, f in self.files.items()}
+        return Route(self.frame_ids[rows], {s: im[rows] for s, im in self.images.items()}, files)
 
     @property
     def seasons(self) -> tuple[str, ...]:

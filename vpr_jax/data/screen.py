@@ -79,4 +79,4 @@ def screen_route(route: Route, *, max_std: float, drop: bool, log: Log = print) 
         f"{what}; dropped from every season (data.drop_constant_frames=true), "
         f"{int(keep.sum()):,} places left"
     )
-    return Route(route.frame_ids[keep], {s: im[keep] for s, im in route.images.items()})
+    return route.take(keep)

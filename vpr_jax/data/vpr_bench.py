@@ -18,7 +18,7 @@ import numpy as np
 
 from vpr_jax.data.benchmark import Benchmark
 from vpr_jax.data.ground_truth import match_sets
-from vpr_jax.data.images import list_images, note_colour, read_images
+from vpr_jax.data.images import list_images, note_colour, read_images, relative_names
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Log
 from vpr_jax.shapes import MAX_PIXELS
@@ -62,6 +62,8 @@ def read_vpr_bench(
         truth=truth,
         db_ids=np.arange(len(refs)),
         query_ids=np.arange(len(queries)),
+        db_names=relative_names(refs, root),
+        query_names=relative_names(queries, root),
     )
 
 

@@ -19,7 +19,7 @@ import importlib.metadata
 import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -156,12 +156,18 @@ def _autoencoder(folder: Path):
     )
 
 
-def load_encoder(folder: str | Path, removed_pcs: int | None = None):
-    """``(encode_fn, params)`` of a folder a sweep saved: ``encode_fn(params, images) -> (n,
-    d)`` is pure and jitted (use it in your own jitted code, vmap it, differentiate through
-    it); ``params`` is the fitted state. ``removed_pcs``: for pca, diff_pca (one fit serves
-    every count the sweep ran) the count to remove; None: the one chosen on the validation
-    places. A checkpoint folder of ``fit_autoencoder`` (no sweep around it) loads too."""
+class StoredEncoder(NamedTuple):
+    """A saved folder's parts: ``encode(params, images)`` on preprocessed images, as the
+    sweep called it (not jitted as a whole: the sweep's own jitted steps, so its descriptors
+    come back bit for bit), the fitted state and the preprocessing the sweep applied."""
+
+    encode: Callable
+    params: Any
+    preprocess: Callable[[jax.Array], jax.Array]
+
+
+def stored_encoder(folder: str | Path, removed_pcs: int | None = None) -> StoredEncoder:
+    """The parts ``load_encoder`` composes (see there for the arguments)."""
     folder = Path(folder).expanduser().resolve()
     if not (folder / ENCODER_JSON).exists() and checkpoints.has_checkpoint(folder):
         description = {"encode": "autoencoder"}  # a model fit_autoencoder trained, as it is
@@ -172,17 +178,31 @@ def load_encoder(folder: str | Path, removed_pcs: int | None = None):
     if how == "autoencoder":
         encode, params = _autoencoder(folder)
     elif how == "plugin":
-        user = load_plugin(description["method"])
+        user_encode = jax.jit(load_plugin(description["method"]).encode)
         encode, params = (
-            (lambda state, images, _: user.encode(state, images)),
+            (lambda state, images, _: user_encode(state, images)),
             restore_state(folder),
         )
     else:
         encode, params = _encode_function(how, folder), restore_state(folder)
-    pre = _preprocess(description)
+    return StoredEncoder(
+        encode=functools.partial(lambda fn, p, x: fn(p, x, k), encode),
+        params=jax.tree.map(jnp.asarray, params),
+        preprocess=_preprocess(description),
+    )
+
+
+def load_encoder(folder: str | Path, removed_pcs: int | None = None):
+    """``(encode_fn, params)`` of a folder a sweep saved: ``encode_fn(params, images) -> (n,
+    d)`` is pure and jitted (use it in your own jitted code, vmap it, differentiate through
+    it); ``params`` is the fitted state. ``removed_pcs``: for pca, diff_pca (one fit serves
+    every count the sweep ran) the count to remove; None: the one chosen on the validation
+    places. A checkpoint folder of ``fit_autoencoder`` (no sweep around it) loads too."""
+    stored = stored_encoder(folder, removed_pcs)
+    encode, pre = stored.encode, stored.preprocess
 
     @jax.jit
     def encode_fn(params, images):
-        return encode(params, pre(jnp.asarray(images, jnp.float32)), k)
+        return encode(params, pre(jnp.asarray(images, jnp.float32)))
 
-    return encode_fn, jax.tree.map(jnp.asarray, params)
+    return encode_fn, stored.params

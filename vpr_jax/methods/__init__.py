@@ -18,7 +18,8 @@ training and report it through the ``MethodContext`` the runner passes in.
 from __future__ import annotations
 
 from vpr_jax.data.pair import PairData
-from vpr_jax.methods.autoencoders import autoencoder_spec, model_name
+from vpr_jax.method_table import model_name
+from vpr_jax.methods.autoencoders import autoencoder_spec
 from vpr_jax.methods.descriptors import Descriptors, MethodContext, PCAFit, degenerate_warning
 from vpr_jax.methods.linear import fit_pair_pca, pca_components_needed
 

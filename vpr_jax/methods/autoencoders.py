@@ -16,6 +16,7 @@ from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import fit_autoencoder
 from vpr_jax.files import lock_folder
+from vpr_jax.method_table import model_name
 from vpr_jax.methods.descriptors import (
     Descriptors,
     Fitted,
@@ -39,12 +40,6 @@ def autoencoder_spec(method: str, cfg: SweepConfig) -> ae.Spec:
         space_to_depth=c.space_to_depth,
         standardise=c.standardise,
     )
-
-
-def model_name(method: str, objective: str = "") -> str:
-    """``fae`` for the seed's objective (and methods without one), ``fae_cross_season``
-    otherwise: names the cell's run, the model's checkpoint folder and its training run."""
-    return method if objective in ("", "reconstruct") else f"{method}_{objective}"
 
 
 def describe_fae(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:

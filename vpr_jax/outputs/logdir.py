@@ -57,8 +57,9 @@ def identity(cfg: SweepConfig | dict) -> dict:
     """The part of a config (or of its saved YAML) that determines the numbers of every cell,
     as plain YAML data."""
     out = to_dict(cfg) if isinstance(cfg, SweepConfig) else plain(cfg)
-    # plugin.<name>.* change only their method's cells: compared per method (plugin_settings)
-    out = {k: v for k, v in out.items() if k not in (*EXTENDABLE_KEYS, "plugin")}
+    # plugin.<name>.* and precomputed.<name>.* change only their method's cells: compared per
+    # method (method_settings)
+    out = {k: v for k, v in out.items() if k not in (*EXTENDABLE_KEYS, "plugin", "precomputed")}
     out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
     for key in TRAIN_BOOKKEEPING:
         out.get("train", {}).pop(key, None)
@@ -73,11 +74,13 @@ def config_yaml(cfg: SweepConfig) -> str:
     return OmegaConf.to_yaml({"format": FORMAT, **to_dict(cfg)})
 
 
-def plugin_settings(cfg: SweepConfig | dict) -> dict[str, dict]:
-    """Per user's method of ``methods``, its ``plugin.<name>.*`` settings ({} when none)."""
+def method_settings(cfg: SweepConfig | dict) -> dict[str, dict]:
+    """Per user's method of ``methods``, its ``plugin.<name>.*`` settings ({} when none);
+    per set of outside descriptors, its ``precomputed.<name>.*`` files."""
     out = to_dict(cfg) if isinstance(cfg, SweepConfig) else plain(cfg)
     names = [plugin_name(m) for m in out.get("methods", []) if is_plugin(m)]
-    return {name: out.get("plugin", {}).get(name, {}) for name in names}
+    plugins = {f"plugin.{n}": out.get("plugin", {}).get(n, {}) for n in names}
+    return {**plugins, **{f"precomputed.{n}": v for n, v in out.get("precomputed", {}).items()}}
 
 
 def saved_identity(path: Path) -> dict:
@@ -108,9 +111,10 @@ def saved_config(path: Path) -> dict:
     return saved
 
 
-def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
-    """Refuse unusable or foreign log directories. Creates nothing: the folder is made when
-    the first file is written into it."""
+def prepare_logdir(logdir: Path) -> None:
+    """Refuse unusable log directories (a file, not writable, an unreadable config.yaml or
+    results.csv); ``check_same_config`` refuses foreign ones once the config is final.
+    Creates nothing: the folder is made when the first file is written into it."""
     existing = next(p for p in (logdir, *logdir.parents) if p.exists())
     if not existing.is_dir():
         where = "is a file" if existing == logdir else f"cannot be made: {existing} is a file"
@@ -125,17 +129,7 @@ def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
         ) from None
     saved, results = logdir / "config.yaml", logdir / "results.csv"
     if saved.exists():
-        now, before_config = identity(cfg), saved_config(saved)
-        before = identity(before_config)
-        differ = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
-        mine, theirs = plugin_settings(cfg), plugin_settings(before_config)
-        differ += [f"plugin.{n}" for n in sorted(set(mine) & set(theirs)) if mine[n] != theirs[n]]
-        if differ:
-            raise UserError(
-                f"logdir {logdir} holds results of a different configuration "
-                f"(differs in {', '.join(differ)}): use a new logdir=PATH, or "
-                "delete that folder to start fresh"
-            )
+        saved_config(saved)
     elif results.exists():
         raise UserError(
             f"logdir {logdir} has a results.csv but no config.yaml, so it cannot "
@@ -148,6 +142,25 @@ def prepare_logdir(logdir: Path, cfg: SweepConfig) -> None:
             f"{results} is not a results table this sweep can resume ({err}): "
             "move it away or use a new logdir=PATH"
         ) from None
+
+
+def check_same_config(logdir: Path, cfg: SweepConfig) -> None:
+    """Refuse a logdir whose config.yaml has another identity than ``cfg`` (the config as it
+    will run: counts fitted to the training set)."""
+    saved = logdir / "config.yaml"
+    if not saved.exists():
+        return
+    now, before_config = identity(cfg), saved_config(saved)
+    before = identity(before_config)
+    differ = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
+    mine, theirs = method_settings(cfg), method_settings(before_config)
+    differ += [n for n in sorted(set(mine) & set(theirs)) if mine[n] != theirs[n]]
+    if differ:
+        raise UserError(
+            f"logdir {logdir} holds results of a different configuration "
+            f"(differs in {', '.join(differ)}): use a new logdir=PATH, or "
+            "delete that folder to start fresh"
+        )
 
 
 def lock_logdir(logdir: Path) -> None:

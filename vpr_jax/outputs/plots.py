@@ -1,7 +1,8 @@
 """Sweep figures, like the seed's Figs 7-12: PR curves per pair and fractions of correct
 matches (at the sweep's shortest sequence length, single images unless told otherwise), and
 recall@1 against the sequence length ds. Built from results.csv rows and each cell's saved
-curve, so a resumed sweep draws every cell, not only those it computed this time."""
+curve, so a resumed sweep draws every cell, not only those it computed this time. Each
+method has the colour TensorBoard gives its method-by-method run (``palette``)."""
 
 from __future__ import annotations
 
@@ -14,26 +15,14 @@ matplotlib.use("Agg")  # files only; no display on clusters or CI
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vpr_jax.method_table import SWEEPS_REMOVED_PCS, colour_of  # noqa: E402
+from vpr_jax.method_table import SWEEPS_REMOVED_PCS  # noqa: E402
+from vpr_jax.outputs.palette import label_of, styles  # noqa: E402
 from vpr_jax.outputs.results import ResultRow, selected_rows  # noqa: E402
 
 
-def _variant(row: ResultRow) -> str:
-    """The method, and the auto-encoders' objective: ``fae cross_season``."""
-    return f"{row.method} {row.objective}" if row.objective else row.method
-
-
-def _style(row: ResultRow) -> dict:
-    """The method's colour from the method table; a dashed line for an objective other than
-    the seed's (``fae cross_season`` beside ``fae reconstruct``)."""
-    dashed = row.objective not in ("", "reconstruct")
-    return {"color": colour_of(row.method), "linestyle": "--" if dashed else "-"}
-
-
 def _label(row: ResultRow) -> str:
-    return (
-        f"{row.method} (k={row.removed_pcs})" if row.method in SWEEPS_REMOVED_PCS else _variant(row)
-    )
+    k = f" (k={row.removed_pcs})" if row.method in SWEEPS_REMOVED_PCS else ""
+    return label_of(row) + k
 
 
 def _save(fig, path: Path) -> None:
@@ -60,11 +49,14 @@ def pr_curves_figure(rows: list[ResultRow], load_curve: Callable[[ResultRow], tu
     removed-PC count)."""
     best = selected_rows(_shortest_sequences(rows))
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
+    style = styles(rows)
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
-        for row in sorted((r for r in best if r.season_pair == pair), key=_variant):
+        mine = {label_of(r): r for r in best if r.season_pair == pair}
+        for label in (x for x in style if x in mine):
+            row = mine[label]
             precision, recall = load_curve(row)
-            ax.plot(recall, precision, label=f"{_label(row)}  AUC {row.auc_pr:.2f}", **_style(row))
+            ax.plot(recall, precision, label=f"{_label(row)}  AUC {row.auc_pr:.2f}", **style[label])
         ax.set(title=pair, xlabel="recall", ylabel="precision", xlim=(0, 1.01), ylim=(0, 1.02))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower left")
@@ -76,17 +68,15 @@ def correct_matches_figure(rows: list[ResultRow], path: Path):
     objective)."""
     best = selected_rows(_shortest_sequences(rows))
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
-    methods = list(dict.fromkeys(_variant(r) for r in rows))
-    styles = {_variant(r): _style(r) for r in rows}
-    width = 0.8 / len(methods)
-    fig, ax = plt.subplots(figsize=(3.0 + 0.25 * len(methods) * len(pairs), 3.8))
-    for m, method in enumerate(methods):
-        by_pair = {r.season_pair: r for r in best if _variant(r) == method}
-        x = np.arange(len(pairs)) + (m - (len(methods) - 1) / 2) * width
+    style = styles(rows)
+    width = 0.8 / len(style)
+    fig, ax = plt.subplots(figsize=(3.0 + 0.25 * len(style) * len(pairs), 3.8))
+    for m, (method, line) in enumerate(style.items()):
+        by_pair = {r.season_pair: r for r in best if label_of(r) == method}
+        x = np.arange(len(pairs)) + (m - (len(style) - 1) / 2) * width
         heights = [by_pair[p].recall_at_1 if p in by_pair else np.nan for p in pairs]
-        dashed = styles[method]["linestyle"] == "--"
-        colour = styles[method]["color"]
-        bars = ax.bar(x, heights, width, label=method, color=colour, hatch="//" if dashed else None)
+        hatch = "//" if line["linestyle"] == "--" else None
+        bars = ax.bar(x, heights, width, label=method, color=line["color"], hatch=hatch)
         ax.bar_label(bars, fmt="%.2f", fontsize=7)
     ax.set_xticks(np.arange(len(pairs)), pairs)
     ax.set(ylabel="fraction of correct matches", ylim=(0, 1.08))
@@ -99,18 +89,17 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
     (PCA and ICA at their validation-selected removed-PC count for each ds, as in results.md)."""
     best = selected_rows(rows)
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
-    methods = list(dict.fromkeys(_variant(r) for r in rows))
-    styles = {_variant(r): _style(r) for r in rows}
+    style = styles(rows)
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
-        for method in methods:
+        for method, line in style.items():
             points = sorted(
                 (r.ds, r.recall_at_1)
                 for r in best
-                if r.season_pair == pair and _variant(r) == method
+                if r.season_pair == pair and label_of(r) == method
             )
             if points:
-                ax.plot(*zip(*points, strict=True), marker="o", label=method, **styles[method])
+                ax.plot(*zip(*points, strict=True), marker="o", label=method, **line)
         ax.set(
             title=pair,
             xlabel="sequence length ds (frames)",

@@ -218,6 +218,39 @@ def write_pair_summary(
     _closed(writer)
 
 
+class CompareSeries(NamedTuple):
+    """One method's cells of one pair, for its method-by-method run."""
+
+    points: list[tuple[int, float, float]]  # (removed-PC count, recall@1, AUC-PR) per step
+    best_scores: np.ndarray  # of its selected cell: the PR curve
+    best_correct: np.ndarray
+    has_match: np.ndarray
+
+
+def write_method_run(
+    run_dir: Path, series: dict[str, CompareSeries], *, pr_convention: str, n_thresholds: int
+) -> None:
+    """A method's run of the method-by-method view (``LOGDIR/compare/<method>``), its tags
+    per pair: ``pr_curve/<pair>`` (its selected cell's curve, so PR CURVES overlays the
+    methods of a pair in one chart) and ``<pair>/recall_at_1``, ``<pair>/auc_pr`` with the
+    removed-PC count as the step (a chart per pair and metric, a line per method)."""
+    writer = SummaryWriter(str(run_dir))
+    for pair, s in series.items():
+        _add_pr_curve(
+            writer,
+            f"pr_curve/{pair}",
+            s.best_scores,
+            s.best_correct,
+            s.has_match,
+            pr_convention,
+            n_thresholds,
+        )
+        for k, recall_at_1, auc_pr in s.points:
+            writer.add_scalar(f"{pair}/recall_at_1", float(recall_at_1), global_step=k)
+            writer.add_scalar(f"{pair}/auc_pr", float(auc_pr), global_step=k)
+    _closed(writer)
+
+
 class TrainingRun:
     """A training run's TensorBoard log: losses per step, image grids, and run-log lines.
 
