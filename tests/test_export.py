@@ -18,6 +18,7 @@ import pytest
 
 from tests.conftest import (
     PROCESS_TIMEOUT_S,
+    LogLines,
     assert_one_line_error,
     env_with_repo,
     read_run,
@@ -27,6 +28,7 @@ from tests.conftest import (
 )
 from tests.inputs import N_PLACES, read_grey, write_vpr_bench
 from vpr_jax.data.synthetic import synthetic_route
+from vpr_jax.errors import UserError
 
 TINY_MODELS = ["fae.hidden=32", "train.epochs=2", "fae.epochs=2"]
 
@@ -40,8 +42,8 @@ def export_cli(*args: str):
 
 
 def _bench(folder: Path) -> None:
-    """The benchmark, numpy's descriptors of it, a sweep of raw, pca, ica (default counts)
-    and a tiny FAE plus two outside sets and sequences of 4, and its export."""
+    """The benchmark, numpy's descriptors of it, a sweep of raw, pca, ica and a tiny FAE
+    plus two outside sets and sequences of 4, and its export."""
     route = synthetic_route(N_PLACES, ("summer", "fall"), seed=3)
     root = folder / "bench"
     refs, queries, rows = write_vpr_bench(root, route, drop_rows={7})
@@ -59,6 +61,7 @@ def _bench(folder: Path) -> None:
         "data.source=vpr_bench",
         f"data.root={root}",
         "methods=[raw,pca,ica,fae]",
+        "removed_pcs=[0,5,50]",
         *TINY_MODELS,
         "sequence.enabled=true",
         "sequence.ds=[1,4]",
@@ -106,18 +109,32 @@ def read_pairs(folder: Path) -> tuple[list[str], list[list[str]]]:
     return queries, [lists[q] for q in queries]
 
 
-def test_a_small_benchmark_runs_on_the_default_counts(bench):
+def _plan(bench: Path, logdir: Path, *args: str):
+    from experiments.plan import make_plan
+    from vpr_jax.config import given_keys, parse_config
+
+    argv = ["data.source=vpr_bench", f"data.root={bench / 'bench'}", f"logdir={logdir}", *args]
+    notes = LogLines()
+    return make_plan(parse_config(argv), notes, given_keys(argv)).cfg, notes
+
+
+def test_a_small_benchmark_runs_on_the_default_counts(bench, tmp_path):
     """120 training images serve 119 components: ica.n_components=128 with removed_pcs up
-    to 100 cannot all fit, so the default ICA size is capped (one note) and the sweep runs
-    every default count."""
-    sweep_out = json.loads((bench / "outputs.json").read_text())[0]
-    notes = [line for line in sweep_out.splitlines() if "capped" in line]
-    assert notes == [
+    to 100 cannot all fit, so the default ICA size is capped (one note) and every default
+    count runs; set on the command line, the counts are kept or refused, never changed."""
+    cfg, notes = _plan(bench, tmp_path)
+    assert [n for n in notes if n.startswith("note: ica")] == [
         "note: ica.n_components=128 capped to 19: PCA of 120 training images has 119 "
         "components and removed_pcs goes up to 100 (set ica.n_components to choose)"
     ]
-    counts = {int(r["removed_pcs"]) for r in results(bench) if r["method"] == "ica"}
-    assert counts == {0, 5, 10, 20, 50, 100}
+    assert cfg.removed_pcs == (0, 5, 10, 20, 50, 100) and cfg.ica.n_components == 19
+    cfg, notes = _plan(bench, tmp_path, "ica.n_components=100")  # the counts give way to it
+    assert cfg.removed_pcs == (0, 5, 10)
+    assert any("removed_pcs [20, 50, 100] dropped" in n for n in notes)
+    with pytest.raises(UserError, match="ica.n_components=100 with removed_pcs up to 50"):
+        _plan(bench, tmp_path, "ica.n_components=100", "removed_pcs=[0,50]")
+    ica = {int(r["removed_pcs"]) for r in results(bench) if r["method"] == "ica"}
+    assert ica == {0, 5, 50}  # the sweep ran with the capped size
 
 
 def test_the_top_of_pairs_txt_reproduces_the_sweeps_recall(bench):
@@ -205,12 +222,12 @@ def test_every_setting_exports_under_its_run_name(bench, tmp_path):
     proc = export_cli(str(bench / "runs"), f"out={out}", "all_settings=true", "top_k=3")
     assert proc.returncode == 0, proc.stderr
     names = {p.name for p in (out / "ref-query").iterdir()}
-    assert {"pca_k000", "pca_k100", "ica_k050", "raw", "pca_k005_ds04"} <= names
-    _, lists = read_pairs(out / "ref-query" / "pca_k100")
+    assert {"pca_k000", "pca_k050", "ica_k050", "raw", "pca_k005_ds04"} <= names
+    _, lists = read_pairs(out / "ref-query" / "pca_k050")
     assert {len(m) for m in lists} == {3}
     again = export_cli(str(bench / "runs"), f"out={out}", "all_settings=true")
     assert_one_line_error(again, f"out={out} is not empty", "overwrite=true")
-    assert {len(m) for m in read_pairs(out / "ref-query" / "pca_k100")[1]} == {3}  # kept
+    assert {len(m) for m in read_pairs(out / "ref-query" / "pca_k050")[1]} == {3}  # kept
 
 
 @pytest.mark.parametrize(

@@ -49,8 +49,8 @@ class Descriptors(NamedTuple):
     starts: tuple[int, ...]  # per count: cosine on descriptor features [start:]
     db: jax.Array  # (n_db, d)
     query: jax.Array  # (n_queries, d)
-    val_db: jax.Array  # (n_val, d): the validation places, database season
-    val_query: jax.Array  # (n_val, d): the validation places, query season
+    val_db: jax.Array | None  # (n_val, d): the validation places, database season (None:
+    val_query: jax.Array | None  # outside descriptors that do not cover them, NaN scores)
     fit_seconds: float
     encode_ms_per_image: float  # warm (compiled) encoding time
     n_iter: int = 0  # iterations of an iterative fit (0: closed form; epochs when trained)
