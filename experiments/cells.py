@@ -228,10 +228,12 @@ def log_cell(log: Log, counter: str, row: ResultRow, warning: str | None) -> Non
     k_text += f" k={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else ""
     k_text += f" ds={row.ds}" if row.ds != 1 else ""
     iters = f"  {row.n_iter} iterations" if row.n_iter else ""
+    cost = f"fit {row.fit_seconds:.2f} s{iters}  {row.encode_ms_per_image:.4f} ms/img"
+    if math.isnan(row.fit_seconds):  # outside descriptors: their cost was paid elsewhere
+        cost = "descriptors computed elsewhere"
     log(
         f"{counter} {row.season_pair} {row.method}{k_text}: recall@1 {row.recall_at_1:.3f}  "
-        f"auc_pr {row.auc_pr:.3f}  R@100P {row.recall_at_100_precision:.3f}  "
-        f"fit {row.fit_seconds:.2f} s{iters}  {row.encode_ms_per_image:.4f} ms/img"
+        f"auc_pr {row.auc_pr:.3f}  R@100P {row.recall_at_100_precision:.3f}  {cost}"
     )
     if warning:
         log(f"warning: {row.season_pair} {row.method}{k_text}: {warning}")
