@@ -90,11 +90,12 @@ def match(
     ]
 
 
-def run_name(pair: str, method: str, k: int, ds: int = 1, objective: str = "") -> str:
+def run_name(pair: str, method: str, k: int | None, ds: int = 1, objective: str = "") -> str:
     """``summer-fall/pca_k005``, ``summer-fall/fae``, ``summer-fall/fae_cross_season``;
-    sequence cells add ``_ds10``."""
+    sequence cells add ``_ds10``; ``k=None`` leaves the count out (``summer-fall/pca``)."""
     model = model_name(method, objective)
-    name = f"{pair}/{model}_k{k:03d}" if method in SWEEPS_REMOVED_PCS else f"{pair}/{model}"
+    sweeps = method in SWEEPS_REMOVED_PCS and k is not None
+    name = f"{pair}/{model}_k{k:03d}" if sweeps else f"{pair}/{model}"
     return name if ds == 1 else f"{name}_ds{ds:02d}"
 
 

@@ -87,12 +87,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         opts = parse_args(argv)
         check_paths(opts)
-        from experiments.export_cells import Export, export  # JAX: after the cheap checks
+        from experiments.export_cells import export  # JAX: after the cheap checks
 
-        what = Export(
-            logdir=opts.logdir, out=opts.out, top_k=opts.top_k, all_settings=opts.all_settings
-        )
-        export(what, print)
+        export(opts.logdir, opts.out, top_k=opts.top_k, all_settings=opts.all_settings, log=print)
     except UserError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -9,17 +9,15 @@ import json
 import math
 import shutil
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
-from experiments.cells import INCOMPLETE, match
+from experiments.cells import INCOMPLETE, match, run_name
 from experiments.encoders import read_listing
 from experiments.plan import Plan, make_plan
 from experiments.run import load_pair
 from vpr_jax.config import SweepConfig, config_from_dict
 from vpr_jax.data.pair import PairData
-from vpr_jax.data.precomputed import read_precomputed
 from vpr_jax.encoders.saved import FIT_JSON, stored_encoder, suite_version
 from vpr_jax.errors import UserError
 from vpr_jax.files import replace_folder
@@ -55,44 +53,31 @@ def saved_encoders(logdir: Path) -> SavedEncoders:
 def folder_name(row: ResultRow, all_settings: bool) -> str:
     """The cell's run name less its pair; less the removed-PC count too unless
     ``all_settings`` (``pca``, ``pca_k005``, ``fae_cross_season``, ``lda_ds10``)."""
-    name = row.run.split("/", 1)[1]
-    if all_settings or row.method not in SWEEPS_REMOVED_PCS:
-        return name
-    return name.replace(f"_k{row.removed_pcs:03d}", "", 1)
+    k = row.removed_pcs if all_settings else None
+    return run_name(row.season_pair, row.method, k, row.ds, row.objective).split("/", 1)[1]
 
 
-class Export(NamedTuple):
-    """What to export from where to where (``experiments.export``'s options)."""
-
-    logdir: Path
-    out: Path
-    top_k: int
-    all_settings: bool
-
-
-def export(opts: Export, log: Log) -> Path:
-    """Every chosen cell of the sweep in ``opts.logdir`` as a folder under ``opts.out``."""
-    cfg = sweep_config(opts.logdir)
-    rows = read_results(opts.logdir / "results.csv")
-    chosen = rows if opts.all_settings else selected_rows(rows)
+def export(logdir: Path, out: Path, *, top_k: int, all_settings: bool, log: Log) -> Path:
+    """Every chosen cell of the sweep in ``logdir`` (its validation-selected ones, or every
+    one with ``all_settings``) as a folder under ``out``, ``top_k`` matches per query."""
+    rows = read_results(logdir / "results.csv")
+    chosen = rows if all_settings else selected_rows(rows)
     if not chosen:
-        raise UserError(f"logdir {opts.logdir} has no finished cell yet: let the sweep finish")
-    plan = make_plan(cfg, log)
-    encoders = saved_encoders(opts.logdir)
+        raise UserError(f"logdir {logdir} has no finished cell yet: let the sweep finish")
+    plan = make_plan(sweep_config(logdir), log)
+    encoders = saved_encoders(logdir)
     for db, query in plan.pairs:
         mine = [r for r in chosen if r.season_pair == f"{db}-{query}"]
         if not mine:
             continue
         pair = load_pair(plan, db, query)
         for row in sorted(mine, key=lambda r: r.run):
-            recall = export_cell(opts, plan, pair, row, encoders)
-            log(
-                f"{pair.name}/{folder_name(row, opts.all_settings)}: recall@1 {recall:.3f} "
-                f"(sweep: {row.recall_at_1:.3f})"
-            )
-    shutil.rmtree(opts.out / INCOMPLETE, ignore_errors=True)
-    log(f"exported {len(chosen)} cells to {opts.out}")
-    return opts.out
+            name = folder_name(row, all_settings)
+            recall = export_cell(plan, pair, row, _saved_folder(encoders, row), out, name, top_k)
+            log(f"{pair.name}/{name}: recall@1 {recall:.3f} (sweep: {row.recall_at_1:.3f})")
+    shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
+    log(f"exported {len(chosen)} cells to {out}")
+    return out
 
 
 def _saved_folder(encoders: SavedEncoders, row: ResultRow) -> Path | None:
@@ -103,16 +88,13 @@ def _saved_folder(encoders: SavedEncoders, row: ResultRow) -> Path | None:
 
 
 def cell_descriptors(
-    cfg: SweepConfig, pair: PairData, row: ResultRow, folder: Path | None
+    plan: Plan, pair: PairData, row: ResultRow, folder: Path | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """(database, queries) descriptors of the cell: the outside files' rows, or the saved
     encoder's output on the sweep's (preprocessed) images, called as the sweep called it."""
-    if row.method in cfg.precomputed:
-        files = cfg.precomputed[row.method]
-        return tuple(
-            read_precomputed(files, row.method, side, names, cfg.data.root)
-            for side, names in (("database", pair.names.db), ("queries", pair.names.query))
-        )
+    if row.method in plan.outside:
+        sides = plan.outside[row.method]
+        return sides["database"].of(pair.names.db), sides["queries"].of(pair.names.query)
     if folder is None:
         raise UserError(
             f"{row.run}: its saved encoder is missing (logdir's encoders.csv lists none for "
@@ -126,16 +108,21 @@ def cell_descriptors(
 
 
 def export_cell(
-    opts: Export, plan: Plan, pair: PairData, row: ResultRow, encoders: SavedEncoders
+    plan: Plan,
+    pair: PairData,
+    row: ResultRow,
+    folder: Path | None,
+    out: Path,
+    name: str,
+    top_k: int,
 ) -> float:
-    """Write one cell's folder (aside, then moved into place); returns the recall@1 of its
-    ``pairs.txt`` (the share of queries whose first line is correct)."""
-    cfg, name = plan.cfg, folder_name(row, opts.all_settings)
-    staging = opts.out / INCOMPLETE / pair.name / name
+    """Write one cell's folder ``out/<pair>/<name>`` (aside, then moved into place), its
+    encoder copied from ``folder``; returns the recall@1 of its ``pairs.txt`` (the share of
+    queries whose first line is correct)."""
+    cfg, staging = plan.cfg, out / INCOMPLETE / pair.name / name
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
-    folder = _saved_folder(encoders, row)
-    db, query = cell_descriptors(cfg, pair, row, folder)
+    db, query = cell_descriptors(plan, pair, row, folder)
     desc = Descriptors(
         method=row.method,
         removed_pcs=(row.removed_pcs,),
@@ -147,7 +134,7 @@ def export_cell(
         fit_seconds=math.nan,
         encode_ms_per_image=math.nan,
     )
-    ((scores, idx),) = match(desc, pair, row.ds, (row.removed_pcs,), cfg, None, k=opts.top_k)
+    ((scores, idx),) = match(desc, pair, row.ds, (row.removed_pcs,), cfg, None, k=top_k)
     correct = pair.truth.correct(idx)
     for side, names in (("database", pair.names.db), ("queries", pair.names.query)):
         files.write_names(staging, side, names)
@@ -165,16 +152,16 @@ def export_cell(
         }
         files.copy_encoder(folder, staging, selection)
     recall = float(correct[:, 0].sum() / len(correct))  # metrics.evaluate_matches' recall@1
-    facts = _facts(opts, pair, row, folder, recall, db.shape)
+    facts = _facts(plan.logdir, top_k, pair, row, folder, recall, db.shape)
     (staging / "README.txt").write_text(files.readme(facts, config_yaml(cfg)))
-    replace_folder(staging, opts.out / pair.name / name)
+    replace_folder(staging, out / pair.name / name)
     return recall
 
 
-def _facts(opts, pair: PairData, row: ResultRow, folder, recall: float, shape) -> dict:
+def _facts(logdir, top_k, pair: PairData, row: ResultRow, folder, recall: float, shape) -> dict:
     setting = f"removed_pcs={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else "-"
     return {
-        "exported from": f"{opts.logdir} (run {row.run})",
+        "exported from": f"{logdir} (run {row.run})",
         "suite version": suite_version(),
         "pair": f"{pair.name}: database {pair.db_season}, queries {pair.query_season}",
         "method": row.method + (f", objective {row.objective}" if row.objective else ""),
@@ -188,7 +175,7 @@ def _facts(opts, pair: PairData, row: ResultRow, folder, recall: float, shape) -
         "descriptors": f"database.npy, queries.npy: float32, {shape[1]} features, cosine"
         if row.ds == 1
         else "none: sequence matching ranks sequences of descriptors, not single ones",
-        "pairs": f"pairs.txt, scores.csv: top {opts.top_k} per query, best first",
+        "pairs": f"pairs.txt, scores.csv: top {top_k} per query, best first",
         "encoder": "this folder: vpr_jax.load_encoder(folder) -> (encode_fn, params)"
         if folder is not None
         else "none: outside descriptors (precomputed), or its saved folder was missing",

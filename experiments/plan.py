@@ -15,7 +15,7 @@ from typing import NamedTuple
 from vpr_jax.config import BENCHMARK_SOURCES, SequenceConfig, SweepConfig
 from vpr_jax.data import SEASON_ORDER, Benchmark, Route, load_data, load_train_route
 from vpr_jax.data.benchmark import BENCHMARK_PAIRS
-from vpr_jax.data.precomputed import read_precomputed
+from vpr_jax.data.precomputed import OutsideSide, read_precomputed
 from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
@@ -34,6 +34,7 @@ class Plan(NamedTuple):
     split: Split | None  # of the route
     benchmark: Benchmark | None = None  # data.source is a benchmark: its one pair
     methods: tuple[MethodInfo, ...] = ()  # cfg.methods as rows of the method table
+    outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed set -> side -> descriptors
 
     def describe(self) -> str:
         """What the sweep runs on, for the run log's first line."""
@@ -182,12 +183,14 @@ def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> No
         )
 
 
-def check_precomputed_files(cfg: SweepConfig, bench: Benchmark) -> None:
-    """Read every set of outside descriptors once (``precomputed.*``): a file that cannot
-    serve the benchmark's images is one line now, not after the other methods ran."""
-    for name, files in cfg.precomputed.items():
-        for side, names in (("database", bench.db_names), ("queries", bench.query_names)):
-            read_precomputed(files, name, side, names, cfg.data.root)
+def read_outside_sets(cfg: SweepConfig, bench: Benchmark) -> dict[str, dict[str, OutsideSide]]:
+    """Every set of outside descriptors (``precomputed.*``), read once in the benchmark's
+    order: a file that cannot serve its images is one line now, before any method runs."""
+    sides = {"database": bench.db_names, "queries": bench.query_names}
+    return {
+        name: read_precomputed(files, name, sides, cfg.data.root)
+        for name, files in cfg.precomputed.items()
+    }
 
 
 def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -> Plan:
@@ -239,7 +242,6 @@ def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -
     methods = resolve_methods(
         cfg.methods, route is not None, cfg.data.source, tuple(cfg.precomputed)
     )
-    check_precomputed_files(cfg, bench)
     check_same_config(logdir, cfg)
     return Plan(
         cfg=cfg,
@@ -249,4 +251,5 @@ def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -
         split=split,
         benchmark=bench,
         methods=methods,
+        outside=read_outside_sets(cfg, bench),
     )

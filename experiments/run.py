@@ -77,17 +77,17 @@ def start_devices(cfg: MeshConfig, log: Log) -> Mesh | None:
     return mesh
 
 
-def method_context(
-    cfg: SweepConfig, logdir: Path, out: Path, pair: str, log: Log, mesh: Mesh | None
-) -> MethodContext:
+def method_context(plan: Plan, out: Path, pair: str, log: Log, mesh: Mesh | None) -> MethodContext:
     """Checkpoints under <train.checkpoint_dir>/<logdir name>/<pair>/<method>/; a training
-    run per auto-encoder next to its cell's run (under ``out``, where this process writes)."""
-    ident = identity(cfg)
+    run per auto-encoder next to its cell's run (under ``out``, where this process writes);
+    the plan's outside descriptors."""
+    ident = identity(plan.cfg)
     return MethodContext(
-        checkpoint_dir=fitted_root(cfg, logdir) / pair,
+        checkpoint_dir=fitted_root(plan.cfg, plan.logdir) / pair,
         training_log=lambda method: TrainingRun(out / pair / f"{method}_training", log),
         identity={k: ident[k] for k in ("data", "split", "seed")},  # + training settings
         mesh=mesh,
+        outside=plan.outside,
     )
 
 
@@ -191,7 +191,7 @@ def _run_pair(
     """Every method of one pair with cells still to do: its descriptors, its fitted state
     kept, its cells saved as they end (yielded with the descriptors' warning)."""
     cfg, pair = plan.cfg, f"{db}-{query}"
-    data, ctx = None, method_context(cfg, plan.logdir, out, pair, log, mesh)
+    data, ctx = None, method_context(plan, out, pair, log, mesh)
     saved: set[str] = set()  # fitted folders written in this run
     for method in plan.methods:
         # Objectives and counts with any cell still to do: their descriptors are computed

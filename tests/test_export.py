@@ -10,12 +10,15 @@ import csv
 import json
 import re
 import shutil
+import signal
+import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from experiments import sweep
 from tests.conftest import (
     PROCESS_TIMEOUT_S,
     LogLines,
@@ -31,6 +34,19 @@ from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.errors import UserError
 
 TINY_MODELS = ["fae.hidden=32", "train.epochs=2", "fae.epochs=2"]
+
+
+def in_process(main, argv: list[str], capsys) -> subprocess.CompletedProcess:
+    """A CLI's ``main(argv)`` run in this process, as the finished process it would be: its
+    refusals come before JAX loads, so this is the CLI a user runs, without the start-up of
+    a fresh interpreter (the sweep's SIGTERM handler is put back afterwards)."""
+    handler = signal.getsignal(signal.SIGTERM)
+    try:
+        code = main(argv)
+    finally:
+        signal.signal(signal.SIGTERM, handler)
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(argv, code, out, err)
 
 
 def export_cli(*args: str):
@@ -240,8 +256,10 @@ def test_every_setting_exports_under_its_run_name(bench, tmp_path):
         (["{tmp}", "all_settings=yes"], ["all_settings=yes is not true or false"]),
     ],
 )
-def test_export_refuses_bad_input_in_one_line(tmp_path, args, words):
-    proc = export_cli(*(a.replace("{tmp}", str(tmp_path)) for a in args))
+def test_export_refuses_bad_input_in_one_line(tmp_path, capsys, args, words):
+    from experiments import export
+
+    proc = in_process(export.main, [a.replace("{tmp}", str(tmp_path)) for a in args], capsys)
     assert_one_line_error(proc, *words)
     assert not (tmp_path / "export").exists()
 
@@ -268,17 +286,18 @@ def _bad(path: Path, case: str) -> None:
         ("pickle", ["pickled Python objects"]),
     ],
 )
-def test_outside_descriptors_that_cannot_serve_are_one_line(bench, tmp_path, case, words):
+def test_outside_descriptors_that_cannot_serve_are_one_line(bench, tmp_path, capsys, case, words):
     bad = tmp_path / "bad.npy"
     _bad(bad, case)
-    proc = run_cli(
+    argv = [
         "data.source=vpr_bench",
         f"data.root={bench / 'bench'}",
         "methods=[raw]",
         f"precomputed.database={bad}",
         f"precomputed.queries={bench / 'centred_q.npy'}",
         f"logdir={tmp_path / 'runs'}",
-    )
+    ]
+    proc = in_process(sweep.main, argv, capsys)
     assert_one_line_error(proc, f"precomputed.database={bad}", *words)
     assert not (tmp_path / "runs").exists()
 
@@ -315,8 +334,8 @@ def test_outside_descriptors_that_cannot_serve_are_one_line(bench, tmp_path, cas
         ),
     ],
 )
-def test_bad_precomputed_settings_are_one_line(tmp_path, args, words):
-    proc = run_cli(*args, f"logdir={tmp_path / 'runs'}")
+def test_bad_precomputed_settings_are_one_line(tmp_path, capsys, args, words):
+    proc = in_process(sweep.main, [*args, f"logdir={tmp_path / 'runs'}"], capsys)
     assert_one_line_error(proc, *words)
 
 

@@ -18,6 +18,7 @@ never unpickled; a file that cannot serve is one line naming it and the fix.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -63,24 +64,25 @@ def open_descriptors(path: str | Path, key: str) -> np.ndarray:
 
 
 def descriptor_rows(
-    array: np.ndarray, names: np.ndarray, all_names: np.ndarray, key: str, path: str
+    array: np.ndarray, names: np.ndarray, root: str | Path, key: str, path: str
 ) -> np.ndarray:
-    """The rows of ``array`` for the images ``names`` (the benchmark's, in its order),
-    float32, checked finite. ``all_names``: every image file of that side's folder, sorted
-    (the other row order a file may have)."""
+    """The rows of ``array`` for the images ``names`` (every image of one side of the
+    benchmark, in its order), float32, checked finite: the file's rows in that order, or one
+    per image file of the side's folder (listed under ``root`` only then)."""
     n = len(array)
-    if n == len(all_names):
-        position = {name: i for i, name in enumerate(all_names)}
-        rows = np.array([position[name] for name in names], dtype=np.int64)
-    elif n == len(names):
+    if n == len(names):
         rows = np.arange(n)
     else:
-        folder = Path(all_names[0]).parent.as_posix() if len(all_names) else "?"
-        raise UserError(
-            f"{key}={path} has {n:,} rows, but {folder}/ holds {len(all_names):,} images "
-            f"({len(names):,} of them used): write one row per image, in sorted file order "
-            "(docs/guide.md, Outside descriptors)"
-        )
+        all_names = folder_names(root, names)
+        position = {name: i for i, name in enumerate(all_names)}
+        if n != len(all_names):
+            folder = Path(all_names[0]).parent.as_posix()
+            raise UserError(
+                f"{key}={path} has {n:,} rows, but {folder}/ holds {len(all_names):,} images "
+                f"({len(names):,} of them used): write one row per image, in sorted file "
+                "order (docs/guide.md, Outside descriptors)"
+            )
+        rows = np.array([position[name] for name in names], dtype=np.int64)
     out = np.asarray(array[rows], dtype=np.float32)
     bad = ~np.isfinite(out).all(axis=1)
     if bad.any():
@@ -106,12 +108,27 @@ def setting_key(name: str, side: str) -> str:
     return f"precomputed.{side}" if name == "precomputed" else f"precomputed.{name}.{side}"
 
 
+class OutsideSide(NamedTuple):
+    """One side of a set of outside descriptors, every image of that side of the benchmark:
+    its rows, and each image name's row."""
+
+    rows: np.ndarray  # float32 (n_images, d)
+    row_of: dict[str, int]
+
+    def of(self, names: np.ndarray) -> np.ndarray:
+        """The descriptors of the images ``names`` (a pair's test or validation part)."""
+        return self.rows[[self.row_of[name] for name in names]]
+
+
 def read_precomputed(
-    files: dict[str, str], name: str, side: str, names: np.ndarray, root: str | Path
-) -> np.ndarray:
-    """float32 ``(len(names), d)``: the descriptors of the images ``names`` (relative to
-    ``root``, ``data.root``) from the ``side`` file of set ``name`` (``files``: its
-    ``{"database": path, "queries": path}``)."""
-    path, key = files[side], setting_key(name, side)
-    array = open_descriptors(path, key)
-    return descriptor_rows(array, names, folder_names(root, names), key, path)
+    files: dict[str, str], name: str, sides: dict[str, np.ndarray], root: str | Path
+) -> dict[str, OutsideSide]:
+    """Set ``name``'s descriptors (``files``: its ``{"database": path, "queries": path}``)
+    for every image of each side (``sides``: side -> the benchmark's image names, relative to
+    ``root``, ``data.root``), read and checked once."""
+    out = {}
+    for side, names in sides.items():
+        path, key = files[side], setting_key(name, side)
+        rows = descriptor_rows(open_descriptors(path, key), names, root, key, path)
+        out[side] = OutsideSide(rows=rows, row_of={n: i for i, n in enumerate(names)})
+    return out

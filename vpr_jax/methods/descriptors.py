@@ -17,6 +17,7 @@ from jax.sharding import Mesh
 from jaxtyping import Array, Float, Int
 
 from vpr_jax.data.pair import PairData
+from vpr_jax.data.precomputed import OutsideSide
 from vpr_jax.encoders import pca
 from vpr_jax.encoders.train import TrainingLog
 
@@ -73,6 +74,7 @@ class MethodContext(NamedTuple):
     training_log: Callable[[str], TrainingLog] | None = None  # method name -> its log
     identity: dict | None = None  # what besides its spec determines a trained model
     mesh: Mesh | None = None  # devices to split work over (vpr_jax.sharding); None: one
+    outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed sets, read by the plan
 
 
 def method_key(seed: int, name: str) -> jax.Array:

@@ -16,7 +16,6 @@ from collections.abc import Iterator
 
 from vpr_jax.config import SweepConfig
 from vpr_jax.data.pair import PairData
-from vpr_jax.data.precomputed import read_precomputed
 from vpr_jax.method_table import MethodInfo
 from vpr_jax.methods.descriptors import Descriptors, MethodContext, degenerate_warning
 
@@ -24,14 +23,10 @@ from vpr_jax.methods.descriptors import Descriptors, MethodContext, degenerate_w
 def describe_precomputed(
     info: MethodInfo, pair: PairData, cfg: SweepConfig, ctx: MethodContext
 ) -> Iterator[Descriptors]:
-    """The pair's database, queries and (benchmark-held-out) validation queries, read from
-    the set's files by image name."""
-    files, root = cfg.precomputed[info.name], cfg.data.root
-
-    def read(side: str, names):
-        return read_precomputed(files, info.name, side, names, root)
-
-    db, query = read("database", pair.names.db), read("queries", pair.names.query)
+    """The pair's database, queries and (benchmark-held-out) validation queries, picked by
+    image name from the set the plan read (``ctx.outside``)."""
+    sides = ctx.outside[info.name]
+    db, query = sides["database"].of(pair.names.db), sides["queries"].of(pair.names.query)
     held_out = not pair.aligned_training  # validation queries are the benchmark's own
     yield Descriptors(
         method=info.name,
@@ -40,7 +35,7 @@ def describe_precomputed(
         db=db,
         query=query,
         val_db=db if held_out else None,
-        val_query=read("queries", pair.names.val_query) if held_out else None,
+        val_query=sides["queries"].of(pair.names.val_query) if held_out else None,
         fit_seconds=math.nan,
         encode_ms_per_image=math.nan,
         basis=(None,),
