@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -161,6 +162,20 @@ def _validation_scores(cfg: SweepConfig, pair: PairData, val_top: TopK | None):
         return math.nan, math.nan
     val = evaluate_matches(*val_top, pair.val_truth, pr_convention=cfg.pr_convention)
     return val.recall_at_1, val.auc_pr
+
+
+def validation_recalls(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> Callable:
+    """The pair's ``MethodContext.validate``: ``(validation database, validation query
+    descriptors, suffix starts) -> recall@1 per start``, matched and scored as every
+    cell's validation places are (``match``, ``_validation_scores``)."""
+
+    def recalls(val_db, val_query, starts: tuple[int, ...]) -> list[float]:
+        scores, idx = top_k_matches(
+            val_query, val_db, TOP_K, starts=starts, block_size=cfg.matching.block_size, mesh=mesh
+        )
+        return [_validation_scores(cfg, pair, top)[0] for top in zip(scores, idx, strict=True)]
+
+    return recalls
 
 
 def save_cell(

@@ -28,6 +28,7 @@ from vpr_jax.outputs.plots import correct_matches_figure, pr_curves_figure, reca
 from vpr_jax.outputs.results import (
     ResultRow,
     baseline_of,
+    best_objectives,
     best_rows,
     read_results,
     selected_rows,
@@ -277,6 +278,7 @@ def markdown_table(rows: list[ResultRow], differences: dict[str, Difference] | N
         SELECTION_NOTE,
         "",
         *_headline(selected_rows(rows), differences or {}, sequences),
+        *_best_objective_note(rows),
         "",
         "## Best removed-PC count per method, chosen on the test queries (optimistic)",
         "",
@@ -330,14 +332,14 @@ def _versus_pca(row: ResultRow, differences: dict[str, Difference]) -> tuple[str
 def _headline(
     rows: list[ResultRow], differences: dict[str, Difference], sequences: bool
 ) -> list[str]:
-    body = []
+    body, preferred = [], best_objectives(rows)
     for r in _in_order(rows):
         versus, label = _versus_pca(r, differences)
         body.append(
             [
                 r.season_pair,
                 r.method,
-                r.objective,
+                r.objective + (" best" if r.run in preferred else ""),
                 str(r.removed_pcs),
                 *((str(r.ds),) if sequences else ()),
                 f"{r.val_recall_at_1:.3f}",
@@ -350,6 +352,15 @@ def _headline(
             ]
         )
     return _markdown(_without_ds(HEADLINE_COLUMNS, sequences), body)
+
+
+def _best_objective_note(rows: list[ResultRow]) -> list[str]:
+    """A line naming each auto-encoder's best objective per pair (marked "best" above)."""
+    preferred = [r for r in selected_rows(rows) if r.run in best_objectives(rows)]
+    if not preferred:
+        return []
+    named = ", ".join(f"{r.season_pair} {r.method} {r.objective}" for r in _in_order(preferred))
+    return ["", f"Best objective by validation recall@1 (marked best): {named}."]
 
 
 def _not_converged(rows: list[ResultRow]) -> list[str]:

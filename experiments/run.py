@@ -16,7 +16,7 @@ from pathlib import Path
 import jax
 from jax.sharding import Mesh
 
-from experiments.cells import INCOMPLETE, log_cell, match, save_cell
+from experiments.cells import INCOMPLETE, log_cell, match, save_cell, validation_recalls
 from experiments.plan import Plan
 from experiments.report import COMPARE, SUMMARY, write_report
 from vpr_jax.config import MeshConfig, SweepConfig
@@ -29,7 +29,7 @@ from vpr_jax.errors import UserError, first_line
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
 from vpr_jax.method_table import MethodInfo, describe_function
-from vpr_jax.methods import Descriptors, MethodContext, fit_pair_pca
+from vpr_jax.methods import Descriptors, MethodContext, fit_pair_pca, uses_pca_fit
 from vpr_jax.outputs.logdir import config_yaml, fitted_root, identity, lock_logdir
 from vpr_jax.outputs.results import (
     TIMING_NAMES,
@@ -205,7 +205,8 @@ def _run_pair(
             continue
         if data is None:  # built on first use
             data = load_pair(plan, db, query)
-        if method.uses_pca_fit and ctx.pca_fit is None:  # one fit per pair
+            ctx = ctx._replace(validate=validation_recalls(data, cfg, mesh))
+        if uses_pca_fit(method, cfg) and ctx.pca_fit is None:  # one fit per pair
             ctx = ctx._replace(pca_fit=fit_pair_pca(data, cfg, mesh))
         todo_ctx = ctx._replace(
             objectives=tuple(o for o in objectives_of(method, cfg) if o in {o for o, _ in left}),

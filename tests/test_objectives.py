@@ -4,10 +4,12 @@ scored, and that its models train, checkpoint and load like the seed's."""
 import jax
 import numpy as np
 import pytest
+from flax import nnx
+from omegaconf import OmegaConf
 
 from tests.conftest import assert_one_line_error, run_cli, tail_validation
 from tests.inputs import frame_image, write_release
-from vpr_jax.config import SplitConfig, TrainConfig, parse_config
+from vpr_jax.config import PRESET_DIR, SplitConfig, TrainConfig, parse_config
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.data.nordland import read_image_release
 from vpr_jax.data.pair import pair_data
@@ -61,7 +63,7 @@ def test_cross_season_scores_either_season_against_the_places_mean():
     a, b = _images(6, 1), _images(6, 2)
     got = np.asarray(
         objectives.per_example_loss(
-            "cross_season", lambda x: model(params, x), np.stack([a, b], axis=1)
+            "cross_season", nnx.merge(graphdef, params), np.stack([a, b], axis=1)
         )
     )
     mean = (a + b) / 2
@@ -116,9 +118,10 @@ def test_cross_season_lowers_its_validation_loss():
     spec = ae.FAESpec(hidden=16)
     settings = TrainConfig(epochs=5, batch_size=16, learning_rate=3e-3, patience=10)
     graphdef, initial = ae.build(spec, jax.random.fold_in(jax.random.key(0), 0))
-    model = ae.make_reconstruct(graphdef)
     before = float(
-        np.mean(objectives.per_example_loss("cross_season", lambda x: model(initial, x), val_pairs))
+        np.mean(
+            objectives.per_example_loss("cross_season", nnx.merge(graphdef, initial), val_pairs)
+        )
     )
     result = fit_autoencoder(
         spec, pairs, val_pairs, jax.random.key(0), settings, objective="cross_season"
@@ -140,7 +143,24 @@ def test_an_objective_list_is_one_value_or_many():
         (["fae.objective=swap"], ["fae.objective=['swap']", "cross_season"]),
         (["cae.objective=[reconstruct,reconstruct]"], ["cae.objective", "repeats"]),
         (["cae.model=huge"], ["cae.model=huge", "fast or calc"]),
+        (["fae.input=edges"], ["fae.input=edges", "pixels or residual"]),
+        (["cae.input=edges"], ["cae.input=edges", "pixels or residual"]),
+        (["fae.init=xavier"], ["fae.init=xavier", "random or pca"]),
+        (["train.augment=maybe"], ["train.augment=maybe", "true, false or auto"]),
+        (["train.temperature=0"], ["train.temperature=0", "> 0"]),
     ],
 )
 def test_bad_objective_or_model_is_one_line(args, words, tmp_path):
     assert_one_line_error(run_cli(*args, f"logdir={tmp_path / 'runs'}"), *words)
+
+
+def test_the_real_preset_sets_no_data_keys_and_its_logdir_names_the_source():
+    preset = OmegaConf.load(PRESET_DIR / "real.yaml")
+    assert not {"data", "split", "season_pairs", "tolerance"} & set(preset)
+    assert parse_config(["preset=real"]).logdir == "runs/real_synthetic"
+    cfg = parse_config(["preset=real", "data.source=vpr_bench", "data.root=/nowhere"])
+    assert cfg.logdir == "runs/real_vpr_bench" and cfg.train.augment == "auto"
+    # Without aligned training places its paired objectives give way to the seed's.
+    assert cfg.fae.objective == cfg.cae.objective == ("reconstruct",)
+    assert parse_config(["preset=real", "logdir=mine"]).logdir == "mine"
+    assert parse_config(["train.augment=false"]).train.augment is False

@@ -105,7 +105,7 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
         steps = [e.step for e in ea.Scalars(tag)]
         assert len(steps) == len(set(steps)), f"{tag} has duplicated steps"
         assert steps == sorted(steps)
-    assert len(ea.Scalars("loss/validation")) == 6  # one per epoch, none lost
+    assert len(ea.Scalars("loss/validation")) == 7  # the start and every epoch, none lost
 
 
 def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):

@@ -65,7 +65,7 @@ def test_results_table_has_one_row_per_cell(small_sweep):
         best = max((o.val_recall_at_1, o.val_auc_pr) for o in rivals)
         assert (r.val_recall_at_1, r.val_auc_pr) == best
     # One plain line per finished cell, whatever the terminal.
-    assert proc.stdout.count("recall@1") == len(rows)
+    assert proc.stdout.count(": recall@1") == len(rows)
 
 
 def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
@@ -128,7 +128,9 @@ def test_autoencoder_training_is_logged_and_checkpointed(small_sweep):
             ea = read_run(logdir / pair / f"{method}_training")
             steps = [e.step for e in ea.Scalars("loss/train")]
             assert steps == list(range(1, len(steps) + 1)) and len(steps) >= 2
-            assert len(ea.Scalars("loss/validation")) == 2  # one per epoch
+            # The starting weights, then every epoch: the loss and the recall that selects.
+            assert len(ea.Scalars("loss/validation")) == 3
+            assert len(ea.Scalars("validation/recall_at_1")) == 3
             images = ea.Tags()["images"]
             assert "reconstructions/validation" in images and "inputs/augmented" in images
             # Rows of six: inputs over outputs; for cross_season both seasons' inputs, their
@@ -139,7 +141,7 @@ def test_autoencoder_training_is_logged_and_checkpointed(small_sweep):
             folder = logdir.parent / "checkpoints" / logdir.name / pair / method
             saved = sorted(p.name for p in folder.iterdir() if p.name.isdigit())
             assert saved[-1] == "2" and set(saved) <= {"1", "2"}  # the last epoch, always
-    assert proc.stdout.count("validation loss") == 3 * 4 * 2  # a line per model and epoch
+    assert proc.stdout.count("validation loss") == 3 * 4 * 3  # per model: the start, 2 epochs
 
 
 def test_summaries_and_figures_are_written(small_sweep):
@@ -188,7 +190,7 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
     assert f"resuming: {len(kept)} of {len(rows)}" in proc.stdout
     assert "spring-fall fae: restored the trained model" in proc.stdout
     assert "validation loss" not in proc.stdout
-    assert proc.stdout.count("recall@1") == len(lost)
+    assert proc.stdout.count(": recall@1") == len(lost)
     again = read_results(logdir / "results.csv")
     assert len(again) == len(rows)
     metric = ("recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_10")
@@ -201,7 +203,7 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
         assert len(list((logdir / r.run).glob("events.out.tfevents.*"))) == 1
     # A finished sweep run again computes nothing.
     proc = run_cli(*SMALL, f"logdir={logdir}")
-    assert proc.returncode == 0 and proc.stdout.count("recall@1") == 0
+    assert proc.returncode == 0 and proc.stdout.count(": recall@1") == 0
 
 
 def test_named_pairs_select_database_and_query_seasons(tmp_path):

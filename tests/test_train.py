@@ -124,7 +124,8 @@ def test_an_interrupted_run_resumes_at_its_saved_epoch_and_ends_as_an_uninterrup
     assert resumed.best_val_loss == whole.best_val_loss
     # TensorBoard shows every step once: what the cut session logged after epoch 2 is purged.
     assert _train_steps(tb_dir) == list(range(1, whole.steps + 1))
-    assert _train_steps(tb_dir, "loss/validation") == [steps_per_epoch * e for e in (1, 2, 3)]
+    # The starting weights are scored at step 0, then every epoch.
+    assert _train_steps(tb_dir, "loss/validation") == [steps_per_epoch * e for e in (0, 1, 2, 3)]
 
 
 def test_checkpoints_wait_checkpoint_every_s_but_the_last_epoch_is_always_saved(data, tmp_path):
@@ -143,10 +144,10 @@ def test_checkpoints_wait_checkpoint_every_s_but_the_last_epoch_is_always_saved(
 
 def test_early_stopping_keeps_the_best_parameters(data):
     train, val = data
-    # A learning rate far below float32 resolution: the loss cannot improve after epoch 1.
+    # A learning rate far below float32 resolution: no epoch beats the starting weights.
     frozen = TrainConfig(epochs=10, batch_size=32, learning_rate=1e-12, patience=2)
     result = fit_autoencoder(SPEC, train, val, jax.random.key(3), frozen)
-    assert result.stopped_early and result.epochs == 3
+    assert result.stopped_early and result.epochs == 2 and result.best_epoch == 0
     graphdef = result.graphdef
     assert make_eval_loss(graphdef, 32)(result.params, val) == result.best_val_loss
 

@@ -25,7 +25,15 @@ ROUTE_SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")  
 BENCHMARK_SOURCES = ("vpr_bench", "positions", "nordland_star")
 SOURCES = (*ROUTE_SOURCES, *BENCHMARK_SOURCES)
 ICA_FUNS = ("logcosh", "exp", "cube")
-OBJECTIVES = ("reconstruct", "cross_season")  # what the auto-encoders learn to output
+# What the auto-encoders learn (vpr_jax.encoders.objectives, which config does not import);
+# the paired ones learn from aligned training places; the default axis is the first two.
+OBJECTIVES = ("reconstruct", "cross_season", "contrastive")
+PAIRED_OBJECTIVES = ("cross_season", "contrastive")
+DEFAULT_OBJECTIVES = ("reconstruct", "cross_season")
+AE_INPUTS = ("pixels", "residual")  # what the auto-encoders see: fae.input, cae.input
+FAE_INITS = ("random", "pca")  # how the FAE's weights start: fae.init
+SOURCE_FREE_PRESETS = ("real",)  # presets that set no data keys: their logdirs name the source
+AUGMENT = (True, False, "auto")
 OPTIMIZERS = ("adam", "adamw", "sgd")
 PREPROCESSES = ("none", "patchnorm")
 # How PR recall counts (vpr_jax.evaluation.metrics, which config does not import).
@@ -42,6 +50,13 @@ def _check(ok: bool, message: str) -> None:
 def _as_tuple(obj: Any, name: str) -> None:
     # Lists arrive from OmegaConf as lists; freeze them so configs are hashable values.
     object.__setattr__(obj, name, tuple(getattr(obj, name)))
+
+
+def _check_input(obj: Any, group: str) -> None:
+    _check(
+        obj.input in AE_INPUTS,
+        f"{group}.input={obj.input} is unknown: use {' or '.join(AE_INPUTS)}",
+    )
 
 
 def _check_objectives(obj: Any, group: str) -> None:
@@ -269,9 +284,17 @@ class FAEConfig:
 
     hidden: int = 256  # code length: the place descriptor
     epochs: int | None = None  # overrides train.epochs for the FAE (it trains ~100x faster)
-    # One cell per objective: reconstruct (the seed's) and/or cross_season (see
-    # vpr_jax.encoders.objectives); one value or a list.
-    objective: list[str] = field(default_factory=lambda: list(OBJECTIVES))
+    # One cell per objective: reconstruct (the seed's), cross_season and/or contrastive
+    # (see vpr_jax.encoders.objectives); one value or a list.
+    objective: list[str] = field(default_factory=lambda: list(DEFAULT_OBJECTIVES))
+    # pixels: the images; residual: the images less the pair's leading k principal
+    # components, k chosen for PCA on the validation places (the code cannot be spent on
+    # the condition PCA change removal throws away).
+    input: str = "pixels"
+    # random: drawn weights; pca: the linear start, the hidden layer at the PCA solution of
+    # its own inputs for hidden // 2 components, each unit beside its negative
+    # (vpr_jax.encoders.autoencoders.pca_start): training keeps only what beats it.
+    init: str = "random"
     # Subtracted from every pixel before the hidden layer; 0 is the seed's layer, on which
     # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
     input_centre: float = 0.5
@@ -279,6 +302,10 @@ class FAEConfig:
 
     def __post_init__(self):
         _check_objectives(self, "fae")
+        _check_input(self, "fae")
+        _check(
+            self.init in FAE_INITS, f"fae.init={self.init} is unknown: use {' or '.join(FAE_INITS)}"
+        )
         _check(self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1")
         _check(
             0 <= self.input_centre <= 1,
@@ -321,10 +348,12 @@ class CAEConfig:
     space_to_depth: int | None = None  # f: f x f pixel blocks become channels first (1: none)
     standardise: bool = True  # each image to zero mean, std 1/4 before the encoder
     epochs: int | None = None  # overrides train.epochs for the CAE
-    objective: list[str] = field(default_factory=lambda: list(OBJECTIVES))  # as fae.objective
+    objective: list[str] = field(default_factory=lambda: list(DEFAULT_OBJECTIVES))  # as fae's
+    input: str = "pixels"  # pixels | residual: as fae.input
 
     def __post_init__(self):
         _check_objectives(self, "cae")
+        _check_input(self, "cae")
         _check(
             self.model in CAE_MODELS,
             f"cae.model={self.model} is unknown: use {' or '.join(CAE_MODELS)}",
@@ -362,8 +391,11 @@ class TrainConfig:
     batch_size: int = 64
     learning_rate: float = 1e-3
     optimizer: str = "adam"  # adam | adamw | sgd (optax)
-    patience: int = 3  # epochs without a better validation loss before stopping
-    augment: bool = True  # the seed's Table 2: horizontal flip, width/height shift 0.2
+    patience: int = 3  # epochs without a better validation recall@1 before stopping
+    # true: the seed's Table 2 (horizontal flip, width/height shift 0.2); false: none; auto:
+    # train both and keep the better on the validation places' recall@1.
+    augment: Any = True
+    temperature: float = 0.1  # the contrastive objective's: cosine similarities / this
     checkpoint_dir: str = "checkpoints"  # models go to <this>/<logdir name>/<pair>/<method>/
     # An epoch's checkpoint is written once this many seconds passed since the last one (and
     # always for the last epoch): a killed run loses at most about this much training, and
@@ -379,6 +411,11 @@ class TrainConfig:
             f"train.optimizer={self.optimizer} is unknown: use {', '.join(OPTIMIZERS)}",
         )
         _check(self.patience >= 1, f"train.patience={self.patience} must be >= 1")
+        _check(
+            any(self.augment is a for a in (True, False)) or self.augment == "auto",
+            f"train.augment={self.augment} is not true, false or auto",
+        )
+        _check(self.temperature > 0, f"train.temperature={self.temperature} must be > 0")
         _check(
             self.checkpoint_every_s >= 0,
             f"train.checkpoint_every_s={self.checkpoint_every_s} must be >= 0 (0: every epoch)",
@@ -522,7 +559,7 @@ class SweepConfig:
     pr_convention: str = "vpr_bench"  # vpr_bench | has_match | vpr_tutorial: PR recall
     preprocess: str = "none"  # none | patchnorm: applied to every image before any method
     seed: int = 0  # synthetic route and every random initialisation
-    logdir: str | None = None  # default runs/<preset>
+    logdir: str | None = None  # default runs/<preset> (preset=real: runs/real_<data.source>)
     data: DataConfig = field(default_factory=DataConfig)
     split: SplitConfig = field(default_factory=SplitConfig)
     pca: PCAConfig = field(default_factory=PCAConfig)
@@ -546,8 +583,9 @@ class SweepConfig:
     def __post_init__(self):
         _as_tuple(self, "methods")
         _as_tuple(self, "removed_pcs")
-        if self.logdir is None:
-            object.__setattr__(self, "logdir", f"runs/{self.preset}")
+        if self.logdir is None:  # a preset for any source: runs/real_folders, ...
+            source = f"_{self.data.source}" if self.preset in SOURCE_FREE_PRESETS else ""
+            object.__setattr__(self, "logdir", f"runs/{self.preset}{source}")
         _check(len(self.methods) > 0, "methods is empty: e.g. methods=[raw,pca]")
         problem = method_table.check_methods(self.methods, OBJECTIVES)
         _check(problem is None, problem or "")
@@ -689,10 +727,14 @@ def parse_config(argv: list[str]) -> SweepConfig:
         raise UserError(f"bad config: {_first_line(err)}: see docs/config.md") from None
     if cfg.data.aligned_training:
         return cfg
+    # A preset for any source asks for nothing: its paired objectives give way on a
+    # benchmark without aligned places, as the defaults' do.
+    from_preset = preset not in SOURCE_FREE_PRESETS
     asked = {
         key
         for key in ("methods", "fae.objective", "cae.objective")
-        if OmegaConf.select(cli, key) is not None or OmegaConf.select(preset_cfg, key) is not None
+        if OmegaConf.select(cli, key) is not None
+        or (from_preset and OmegaConf.select(preset_cfg, key) is not None)
     }
     return without_aligned_learning(cfg, asked)
 
@@ -721,13 +763,14 @@ def without_aligned_learning(cfg: SweepConfig, asked: set[str]) -> SweepConfig:
     changes = {"methods": tuple(m for m in cfg.methods if m not in method_table.NEEDS_ALIGNED)}
     for model in (m.name for m in method_table.BUILTIN if m.trained):
         objectives = getattr(cfg, model).objective
-        if "cross_season" in objectives and model in changes["methods"]:
+        paired = [o for o in objectives if o in PAIRED_OBJECTIVES]
+        if paired and model in changes["methods"]:
             _check(
                 f"{model}.objective" not in asked,
-                f"{model}.objective=cross_season needs "
+                f"{model}.objective={','.join(paired)} needs "
                 f"aligned training places, which {source} does not have: {fix}",
             )
-        kept = tuple(o for o in objectives if o != "cross_season") or ("reconstruct",)
+        kept = tuple(o for o in objectives if o not in paired) or ("reconstruct",)
         changes[model] = dataclasses.replace(getattr(cfg, model), objective=kept)
     _check(
         bool(changes["methods"]) or bool(cfg.precomputed),

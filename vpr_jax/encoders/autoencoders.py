@@ -35,6 +35,7 @@ import jax.numpy as jnp
 from flax import nnx
 from jaxtyping import Array, Float
 
+from vpr_jax.encoders import pca
 from vpr_jax.encoders.conv import conv_general_dilated
 from vpr_jax.shapes import IMAGE_SHAPE
 
@@ -43,6 +44,7 @@ class FAESpec(NamedTuple):
     hidden: int = 256  # code length
     centre: float = 0.5  # subtracted from every pixel before the hidden layer (0: the seed's)
     standardise: bool = False  # each image to zero mean and std 1/4 first (centre unused)
+    removed: int = 0  # leading principal components taken out of every image first (Removal)
 
 
 class CAESpec(NamedTuple):
@@ -51,6 +53,59 @@ class CAESpec(NamedTuple):
     code_channels: int = 8  # channels of the code; code length = 8 x 16 x this (2 levels)
     space_to_depth: int = 1  # f: f x f pixel blocks become f^2 channels before level 1
     standardise: bool = False  # each image to zero mean and std 1/4 before the encoder
+    removed: int = 0  # as FAESpec.removed
+
+
+class Removal(nnx.Variable):
+    """A fixed array of the model, never trained: the mean and the leading principal
+    components taken out of every image before the encoder sees it (``with_removal``)."""
+
+
+FIXED = ("removal_mean", "removal_basis")  # the params entries training leaves alone
+RESIDUAL_GREY = 0.5  # where a residual image's zero lies: the middle of the decoder's range
+
+
+def split_fixed(params: dict) -> tuple[dict, dict]:
+    """(trainable parameters, fixed arrays) of a params dict."""
+    trainable = {k: v for k, v in params.items() if k not in FIXED}
+    return trainable, {k: v for k, v in params.items() if k in FIXED}
+
+
+def with_removal(params: dict, mean: Array, components: Array) -> dict:
+    """``params`` of a model built with ``removed=k`` holding the PCA mean and its first k
+    components (rows): the model then encodes the image with its k leading components
+    removed, as PCA change removal leaves it (``_Residual.residual``)."""
+    basis = params["removal_basis"]
+    if components.shape != basis.shape:
+        raise ValueError(f"removal needs {basis.shape} components, got {components.shape}")
+    return {
+        **params,
+        "removal_mean": jnp.asarray(mean, basis.dtype),
+        "removal_basis": jnp.asarray(components, basis.dtype),
+    }
+
+
+class _Residual:
+    """What both auto-encoders share: the optional change removal in front of the encoder."""
+
+    def _init_removal(self, removed: int, n_pixels: int) -> None:
+        self.removed = int(removed)
+        if self.removed:
+            self.removal_mean = Removal(jnp.zeros(n_pixels))
+            self.removal_basis = Removal(jnp.zeros((self.removed, n_pixels)))
+
+    def residual(self, images: Float[Array, "n ..."]) -> Float[Array, "n ..."]:
+        """The images the encoder sees and the decoder reproduces: the images themselves, or
+        with components removed PCA's change-removal descriptor ``(I - P_k)(x - mean)``
+        shifted to mid-grey (``RESIDUAL_GREY``), where the sigmoid decoder can reach it.
+        Centred, not ``x - P_k (x - mean)``: that keeps the training mean in every image,
+        which standardising then makes the largest part of each, and every code alike."""
+        if not self.removed:
+            return images
+        x = images.reshape(images.shape[0], -1) - self.removal_mean[...]
+        basis = self.removal_basis[...]
+        residual = x - (x @ basis.T) @ basis
+        return (residual + RESIDUAL_GREY).reshape(images.shape)
 
 
 def standardise(images: Float[Array, "n ..."]) -> Float[Array, "n ..."]:
@@ -62,8 +117,9 @@ def standardise(images: Float[Array, "n ..."]) -> Float[Array, "n ..."]:
     return 0.25 * centred / (jnp.std(images, axis=axes, keepdims=True) + 1e-3)
 
 
-class FAE(nnx.Module):
-    """code = relu((x - centre) W + b); reconstruction = sigmoid(code W' + b').
+class FAE(nnx.Module, _Residual):
+    """code = relu((x - centre) W + b); reconstruction = sigmoid(code W' + b') of the
+    ``residual`` image x (the image itself unless components are removed).
 
     The seed's layer is centre = 0. Then each unit's pre-activation carries 0.5 x the sum of
     its weights, nearly the same for every image: about half the ReLU units start dead and
@@ -79,11 +135,16 @@ class FAE(nnx.Module):
         self.standardise = bool(spec.standardise)
         self.encoder = nnx.Linear(n_pixels, spec.hidden, rngs=rngs)
         self.decoder = nnx.Linear(spec.hidden, n_pixels, rngs=rngs)
+        self._init_removal(spec.removed, n_pixels)
+
+    def inputs(self, images: Float[Array, "n h w"]) -> Float[Array, "n pixels"]:
+        """What the hidden layer multiplies: the (residual) image, flattened, standardised
+        or centred at ``centre``."""
+        x = self.residual(images).reshape(images.shape[0], -1)
+        return standardise(x) if self.standardise else x - self.centre
 
     def encode(self, images: Float[Array, "n h w"]) -> Float[Array, "n code"]:
-        x = images.reshape(images.shape[0], -1)
-        x = standardise(x) if self.standardise else x - self.centre
-        return nnx.relu(self.encoder(x))
+        return nnx.relu(self.encoder(self.inputs(images)))
 
     def __call__(self, images: Float[Array, "n h w"]) -> Float[Array, "n h w"]:
         return nnx.sigmoid(self.decoder(self.encode(images))).reshape(images.shape)
@@ -119,8 +180,8 @@ def _conv(n_in: int, n_out: int, k: int, rngs: nnx.Rngs) -> nnx.Conv:
     )
 
 
-class CAE(nnx.Module):
-    def __init__(self, spec: CAESpec, *, rngs: nnx.Rngs):
+class CAE(nnx.Module, _Residual):
+    def __init__(self, spec: CAESpec, n_pixels: int, *, rngs: nnx.Rngs):
         if len(spec.channels) != len(spec.kernel_sizes) or not spec.channels:
             raise ValueError("CAE needs one kernel size per level and at least one level")
         self.block = int(spec.space_to_depth)
@@ -135,9 +196,11 @@ class CAE(nnx.Module):
         self.up = nnx.List(
             _conv(widths[i + 1], widths[i], k, rngs) for i, k in enumerate(spec.kernel_sizes)
         )
+        self._init_removal(spec.removed, n_pixels)
 
     def _code_map(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n hc wc c"]:
-        x = images if images.ndim == 4 else images[..., None]
+        x = self.residual(images)
+        x = x if x.ndim == 4 else x[..., None]
         if self.standardise:
             x = standardise(x)
         if self.block > 1:
@@ -186,7 +249,7 @@ def _module(spec: Spec, key: jax.Array, image_shape: tuple[int, int]) -> FAE | C
     rngs = nnx.Rngs(params=key)
     if isinstance(spec, FAESpec):
         return FAE(spec, math.prod(image_shape), rngs=rngs)
-    return CAE(spec, rngs=rngs)
+    return CAE(spec, math.prod(image_shape), rngs=rngs)
 
 
 @functools.partial(jax.jit, static_argnums=(0, 2))
@@ -241,7 +304,32 @@ def make_reconstruct(graphdef) -> Callable:
     return reconstruct
 
 
+def pca_start(graphdef, params: dict, images: Float[Array, "n h w"]) -> dict:
+    """An FAE's parameters started at the linear solution for its code size (the "linear
+    start"): PCA of the hidden layer's own inputs (``FAE.inputs`` of the training images)
+    gives the leading ``hidden // 2`` components; each becomes a unit and its negative, so
+    the ReLU code keeps both signs of every coefficient, and the bias centres the inputs at
+    their mean. The decoder starts at the encoder's transpose. A code of this start matches
+    like PCA's coefficients (within the units' clipping); training then keeps an epoch only
+    where the validation places' recall improves on it. An odd last unit keeps its draw."""
+    inputs = _model_inputs(graphdef, params, jnp.asarray(images, jnp.float32))
+    kernel = params["encoder"]["kernel"]
+    n_units = kernel.shape[1] // 2
+    state = pca.fit_pca(inputs, n_units, seed=0)
+    components = state.components.T.astype(kernel.dtype)  # (pixels, n_units)
+    paired = jnp.stack([components, -components], axis=2).reshape(kernel.shape[0], -1)
+    kernel = kernel.at[:, : 2 * n_units].set(paired)
+    bias = params["encoder"]["bias"].at[: 2 * n_units].set(-(state.mean @ paired))
+    decoder = {"kernel": kernel.T, "bias": jnp.zeros_like(params["decoder"]["bias"])}
+    return {**params, "encoder": {"kernel": kernel, "bias": bias}, "decoder": decoder}
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _model_inputs(graphdef, params, images):
+    return nnx.merge(graphdef, params).inputs(images)
+
+
 def reconstruction_loss(graphdef, params, images: Float[Array, "n h w ..."]) -> Float[Array, ""]:
-    """Mean squared error between images and their reconstructions."""
-    recon = nnx.merge(graphdef, params)(images)
-    return jnp.mean((recon - images) ** 2)
+    """Mean squared error between the (residual) images and their reconstructions."""
+    model = nnx.merge(graphdef, params)
+    return jnp.mean((model(images) - model.residual(images)) ** 2)

@@ -8,17 +8,23 @@
   the same for its two seasons wherever the decoder needs it. Asking each season's image
   for the other's (a swap) would do the opposite: the code would have to carry the season
   to know which image to produce.
+- ``contrastive``: no decoder; the codes of a batch's places are compared by cosine, and
+  each place's code in one season is pulled towards its code in the other and pushed from
+  the batch's other places (InfoNCE, symmetric over the two seasons, at ``temperature``).
+  It learns what recognition needs directly: the one signal the aligned places give.
+  Training data: aligned pairs, as for cross_season.
 
-Both are mean squared errors per example (an image, or a place: the mean of its two
-seasons' errors), so training means them over a batch and validation over the held-out
-tail the same way. Augmentation draws one transform per example: a place's two images and
+The first two are mean squared errors per example (an image, or a place: the mean of its
+two seasons' errors; a model that removes components reproduces its residual image,
+``FAE.residual``); the contrastive loss is per place, against the other places of its
+batch. Training means them over a batch and validation over the held-out tail the same
+way. Augmentation draws one transform per example: a place's two images and
 its target move together.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
+import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
@@ -27,7 +33,8 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from vpr_jax.data.augment import AugmentConfig, augment_batch
 from vpr_jax.encoders import autoencoders as ae
 
-OBJECTIVES = ("reconstruct", "cross_season")
+OBJECTIVES = ("reconstruct", "cross_season", "contrastive")
+PAIRED = ("cross_season", "contrastive")  # objectives that train on aligned places' pairs
 
 
 def _check(objective: str) -> None:
@@ -42,7 +49,7 @@ def training_data(objective: str, images: np.ndarray, n_seasons: int = 2) -> np.
     if objective == "reconstruct":
         return np.asarray(images, np.float32)
     if n_seasons != 2 or len(images) % 2:
-        raise ValueError("cross_season needs the aligned training places of two seasons")
+        raise ValueError(f"{objective} needs the aligned training places of two seasons")
     first, second = np.split(np.asarray(images, np.float32), 2)
     return np.stack([first, second], axis=1)
 
@@ -50,7 +57,7 @@ def training_data(objective: str, images: np.ndarray, n_seasons: int = 2) -> np.
 def examples_per_image(objective: str) -> int:
     """Images one training example holds: a batch of b images takes b / this examples."""
     _check(objective)
-    return 2 if objective == "cross_season" else 1
+    return 2 if objective in PAIRED else 1
 
 
 def augment(key: PRNGKeyArray, batch: Array, cfg: AugmentConfig, objective: str) -> Array:
@@ -70,17 +77,41 @@ def inputs_and_targets(objective: str, batch: Array) -> tuple[Array, Array]:
     return jnp.concatenate([a, b]), jnp.concatenate([mean, mean])
 
 
-def per_example_loss(objective: str, model: Callable, batch: Array) -> Float[Array, " n"]:
-    """Mean squared error of ``model`` (images -> images) per example of ``batch``."""
+def contrastive_loss(
+    codes_a: Float[Array, "b d"], codes_b: Float[Array, "b d"], temperature: float
+) -> Float[Array, " b"]:
+    """Symmetric InfoNCE per place: row i of ``codes_a`` and of ``codes_b`` are one place in
+    two seasons; every other row of the batch is a wrong place. Cosine similarities over
+    ``temperature``, cross-entropy of the right place in both directions, averaged."""
+    a = codes_a / (jnp.linalg.norm(codes_a, axis=1, keepdims=True) + 1e-8)
+    b = codes_b / (jnp.linalg.norm(codes_b, axis=1, keepdims=True) + 1e-8)
+    logits = a @ b.T / temperature
+    right = jnp.diagonal(logits)
+    a_to_b = jax.nn.logsumexp(logits, axis=1) - right
+    b_to_a = jax.nn.logsumexp(logits, axis=0) - right
+    return (a_to_b + b_to_a) / 2
+
+
+def per_example_loss(
+    objective: str, model: nnx.Module, batch: Array, temperature: float = 0.1
+) -> Float[Array, " n"]:
+    """The loss of ``model`` (an auto-encoder module) per example of ``batch``: mean squared
+    error of its output (reconstruct, cross_season) or InfoNCE of its code (contrastive)."""
+    if objective == "contrastive":
+        codes = model.encode(jnp.concatenate([batch[:, 0], batch[:, 1]]))
+        return contrastive_loss(codes[: len(batch)], codes[len(batch) :], temperature)
     inputs, targets = inputs_and_targets(objective, batch)
+    targets = model.residual(targets)  # what a model that removes components reproduces
     errors = jnp.mean((model(inputs) - targets) ** 2, axis=tuple(range(1, inputs.ndim)))
     if objective == "reconstruct":
         return errors
     return (errors[: len(batch)] + errors[len(batch) :]) / 2  # a place: both seasons
 
 
-def loss(objective: str, graphdef, params, batch: Array) -> Float[Array, ""]:
+def loss(
+    objective: str, graphdef, params, batch: Array, temperature: float = 0.1
+) -> Float[Array, ""]:
     """The training loss of a batch: the mean of its per-example losses."""
     if objective == "reconstruct":  # the same mean, summed as the seed's loss always was
         return ae.reconstruction_loss(graphdef, params, batch)
-    return jnp.mean(per_example_loss(objective, nnx.merge(graphdef, params), batch))
+    return jnp.mean(per_example_loss(objective, nnx.merge(graphdef, params), batch, temperature))

@@ -6,9 +6,15 @@ and takes one optimizer step on the mean squared error.
 
 ``fit_autoencoder`` is a short loop over named steps on one ``TrainState``:
 ``init_or_restore`` (a fresh state, or the checkpoint's), then per epoch ``train_epoch``
-(a shuffled pass over the training set), ``validation_loss`` and
-``end_epoch`` (keep the best parameters; stop after ``patience`` epochs without
-improvement), and a checkpoint when one is due. Every random draw comes from
+(a shuffled pass over the training set), ``score_epoch`` (the validation loss, and the
+score that selects: the validation places' recall@1 when the caller gives a ``validate``,
+else minus the loss) and ``end_epoch`` (keep the best-scoring parameters; stop after
+``patience`` epochs without a better score), and a checkpoint when one is due. The
+starting weights are scored too (epoch 0): training is kept only where it improves.
+
+Selecting by recognition, not by the loss: an auto-encoder's validation loss keeps falling
+while its code learns more of the season and the light, which recognition must ignore; on
+real frames the epoch of least loss is rarely the epoch of best recall. Every random draw comes from
 ``(key, epoch, step)``, so a run resumed from an epoch's checkpoint continues exactly as the
 uninterrupted run would have.
 """
@@ -41,6 +47,10 @@ from vpr_jax.progress import Bar
 from vpr_jax.sharding import AXIS
 
 OPTIMIZERS = {"adam": optax.adam, "adamw": optax.adamw, "sgd": optax.sgd}  # config's names
+SELECT_RECALL, SELECT_LOSS = "validation recall@1", "validation loss"
+# validate(encode) -> the validation places' recall@1 of a model's encode(images) -> codes
+Validate = Callable[[Callable[[np.ndarray], Array]], float]
+Start = Callable[[Any, dict], dict]  # (graphdef, drawn params) -> the starting params
 
 
 class TrainState(NamedTuple):
@@ -48,8 +58,10 @@ class TrainState(NamedTuple):
 
     params: dict  # the current parameters
     opt_state: Any  # the optimizer's state (optax)
-    best_params: dict  # the parameters of the best validation epoch so far
-    best_val: float  # their validation loss (inf before the first epoch)
+    best_params: dict  # the parameters of the best-scoring epoch so far
+    best_score: float  # their score (validation recall@1, or minus the loss); -inf at first
+    best_val: float  # their validation loss
+    best_epoch: int  # the epoch they are from (0: the starting weights)
     bad_epochs: int  # epochs since the best one: early stopping's counter
     epoch: int  # epochs finished
     step: int  # optimizer steps taken
@@ -58,10 +70,13 @@ class TrainState(NamedTuple):
 
 class TrainResult(NamedTuple):
     graphdef: object  # the architecture: ae.make_encode(graphdef)(params, images)
-    params: dict  # the best parameters (lowest validation loss)
+    params: dict  # the best parameters (highest score: see selected_by)
     epochs: int  # epochs trained in total (before any interruption too)
     steps: int
-    best_val_loss: float
+    best_val_loss: float  # the validation loss of the best parameters
+    best_score: float  # their score: validation recall@1, or minus the validation loss
+    best_epoch: int  # the epoch they are from (0: the starting weights)
+    selected_by: str  # SELECT_RECALL or SELECT_LOSS
     stopped_early: bool
     restored: bool  # a finished model was restored from its checkpoint, not trained
     resumed_epoch: int  # epoch training resumed after (0: from scratch)
@@ -96,11 +111,13 @@ def make_train_step(
     augment: AugmentConfig | None,
     mesh: Mesh | None = None,
     objective: str = "reconstruct",
+    temperature: float = 0.1,
 ):
     """The jitted step ``(params, opt_state, batch, key) -> (params, opt_state, metrics)``
     for one architecture, optimizer and objective (``vpr_jax.encoders.objectives``: a batch
     of images, or of aligned pairs); metrics: ``loss`` and the ``inputs`` it trained on (the
-    batch after augmentation).
+    batch after augmentation). Fixed arrays of the model (``ae.FIXED``: a removal's mean
+    and components) are carried through, never trained.
 
     With a ``mesh`` the batch is split across its devices (data parallel): parameters and
     optimizer state are replicated and XLA all-reduces the gradients. Augmentation draws
@@ -108,8 +125,8 @@ def make_train_step(
     """
     batch_sharding = None if mesh is None else NamedSharding(mesh, P(AXIS))
 
-    def loss_fn(params, batch):
-        return objectives.loss(objective, graphdef, params, batch)
+    def loss_fn(trainable, fixed, batch):
+        return objectives.loss(objective, graphdef, {**trainable, **fixed}, batch, temperature)
 
     @jax.jit
     def train_step(params, opt_state, batch: Float[Array, "b ..."], key: jax.Array):
@@ -117,11 +134,13 @@ def make_train_step(
             batch = jax.lax.with_sharding_constraint(batch, batch_sharding)
         if augment is not None:
             batch = objectives.augment(key, batch, augment, objective)
-        loss, grads = jax.value_and_grad(loss_fn)(params, batch)
-        updates, opt_state = tx.update(grads, opt_state, params)
+        trainable, fixed = ae.split_fixed(params)
+        loss, grads = jax.value_and_grad(loss_fn)(trainable, fixed, batch)
+        updates, opt_state = tx.update(grads, opt_state, trainable)
+        params = {**optax.apply_updates(trainable, updates), **fixed}
         # The augmented batch stays on the device unless the caller fetches it (TensorBoard
         # shows the first one); it is the same graph's output, so nothing compiles twice.
-        return optax.apply_updates(params, updates), opt_state, {"loss": loss, "inputs": batch}
+        return params, opt_state, {"loss": loss, "inputs": batch}
 
     return train_step
 
@@ -135,12 +154,16 @@ def take_batch(data: Array, order: Array, index: Array, batch_size: int) -> Arra
 
 
 @functools.lru_cache(maxsize=32)  # per architecture: season pairs share compilations
-def make_eval_loss(graphdef, batch_size: int, objective: str = "reconstruct") -> Callable:
-    """The objective's mean loss over any number of examples, in fixed-size batches."""
+def make_eval_loss(
+    graphdef, batch_size: int, objective: str = "reconstruct", temperature: float = 0.1
+) -> Callable:
+    """The objective's mean loss over any number of examples, in fixed-size batches (a
+    contrastive batch's places are each other's wrong places)."""
 
     @jax.jit
     def per_example(params, batch):
-        return objectives.per_example_loss(objective, nnx.merge(graphdef, params), batch)
+        model = nnx.merge(graphdef, params)
+        return objectives.per_example_loss(objective, model, batch, temperature)
 
     def eval_loss(params, examples: np.ndarray) -> float:
         losses = []
@@ -192,20 +215,30 @@ def make_trainer(
     settings: TrainConfig,
     mesh: Mesh | None = None,
     objective: str = "reconstruct",
+    fixed: dict | None = None,
+    start: Start | None = None,
 ) -> tuple[Trainer, TrainState]:
-    """The model's compiled steps and its initial state (weights drawn from ``key``).
-    ``n_train`` counts examples; a step sees ``train.batch_size`` images, so a cross_season
-    step takes half as many places."""
+    """The model's compiled steps and its initial state (weights drawn from ``key``; the
+    model's fixed arrays from ``fixed``: ``ae.with_removal``; then ``start(graphdef,
+    params)``, e.g. ``ae.pca_start``). ``n_train`` counts examples; a step sees
+    ``train.batch_size`` images, so a paired step takes half as many places."""
     graphdef, params = ae.build(spec, jax.random.fold_in(key, 0), image_shape)
+    if spec.removed:
+        if fixed is None:
+            raise ValueError(f"a model that removes {spec.removed} components needs them")
+        params = ae.with_removal(params, fixed["removal_mean"], fixed["removal_basis"])
+    if start is not None:
+        params = start(graphdef, params)
     tx = make_optimizer(settings)
     per_step = max(1, settings.batch_size // objectives.examples_per_image(objective))
     batch_size = min(per_step, n_train)
     augment = AugmentConfig() if settings.augment else None
+    temperature = settings.temperature
     trainer = Trainer(
         graphdef=graphdef,
         objective=objective,
-        train_step=make_train_step(graphdef, tx, augment, mesh, objective),
-        eval_loss=make_eval_loss(graphdef, batch_size, objective),
+        train_step=make_train_step(graphdef, tx, augment, mesh, objective, temperature),
+        eval_loss=make_eval_loss(graphdef, batch_size, objective, temperature),
         reconstruct=ae.make_reconstruct(graphdef),
         settings=settings,
         batch_size=batch_size,
@@ -213,9 +246,11 @@ def make_trainer(
     )
     fresh = TrainState(
         params=params,
-        opt_state=tx.init(params),
+        opt_state=tx.init(ae.split_fixed(params)[0]),
         best_params=params,
+        best_score=-math.inf,
         best_val=math.inf,
+        best_epoch=0,
         bad_epochs=0,
         epoch=0,
         step=0,
@@ -229,13 +264,16 @@ def checkpoint_meta(
     image_shape: tuple[int, int],
     identity: dict | None,
     objective: str = "reconstruct",
+    selected_by: str = SELECT_LOSS,
 ) -> dict:
-    """What a checkpoint must hold to be reused: the same model, image shape, objective and
-    identity."""
+    """What a checkpoint must hold to be reused: the same model, image shape, objective,
+    selection and identity (a checkpoint of an older suite that selected otherwise is
+    refused, not resumed)."""
     return {
         "spec": ae.spec_to_json(spec),
         "image_shape": list(image_shape),
         "objective": objective,
+        "selected_by": selected_by,
         "identity": plain(identity or {}),
     }
 
@@ -304,18 +342,45 @@ def train_epoch(
     return state, losses
 
 
-def validation_loss(trainer: Trainer, state: TrainState, val_images: np.ndarray) -> float:
-    """The validation loss of the current parameters (what early stopping watches)."""
-    return trainer.eval_loss(state.params, val_images)
+class EpochScore(NamedTuple):
+    """How one epoch's parameters do on the validation places."""
+
+    val_loss: float  # the objective's loss
+    recall_at_1: float  # their recall@1 (NaN without a validate)
+    score: float  # what selects: recall_at_1, or minus val_loss without a validate
+
+
+def score_epoch(
+    trainer: Trainer,
+    params: dict,
+    val_images: np.ndarray,
+    validate: Validate | None,
+    mesh: Mesh | None,
+) -> EpochScore:
+    """The validation loss of ``params`` and the score that selects among epochs."""
+    val_loss = trainer.eval_loss(params, val_images)
+    if validate is None:
+        return EpochScore(val_loss, math.nan, -val_loss)
+    if mesh is not None:  # encode on one device, as the sweep encodes the chosen model
+        params = jax.tree.map(sharding.to_host, params)
+    encode = ae.make_encode(trainer.graphdef)
+    recall = float(validate(lambda images: encode(params, images)))
+    return EpochScore(val_loss, recall, recall)
 
 
 def end_epoch(
-    state: TrainState, val_loss: float, settings: TrainConfig
+    state: TrainState, scored: EpochScore, settings: TrainConfig
 ) -> tuple[TrainState, bool, bool]:
-    """Keep the best parameters and count epochs without improvement: (state, stopped
-    early, done)."""
-    if val_loss < state.best_val:
-        state = state._replace(best_params=state.params, best_val=val_loss, bad_epochs=0)
+    """Keep the best-scoring parameters (the earlier epoch on a tie) and count epochs
+    without a better score: (state, stopped early, done)."""
+    if scored.score > state.best_score:
+        state = state._replace(
+            best_params=state.params,
+            best_score=scored.score,
+            best_val=scored.val_loss,
+            best_epoch=state.epoch,
+            bad_epochs=0,
+        )
     else:
         state = state._replace(bad_epochs=state.bad_epochs + 1)
     stopped_early = state.bad_epochs >= settings.patience and state.epoch < settings.epochs
@@ -326,32 +391,54 @@ def log_epoch(
     trainer: Trainer,
     state: TrainState,
     losses: np.ndarray,
-    val_loss: float,
+    scored: EpochScore,
     val_examples: np.ndarray,
     log: TrainingLog,
     name: str,
 ) -> None:
-    """The validation loss, six validation examples in rows of input | target | output
-    (reconstruct: the images over their reconstructions; cross_season: both seasons, their
-    mean, the output for each season), one line."""
-    log.scalar("loss/validation", val_loss, state.step)
-    shown = _examples(val_examples, 6)
-    inputs, targets = (
-        np.asarray(x) for x in objectives.inputs_and_targets(trainer.objective, shown)
-    )
-    outputs = np.asarray(trainer.reconstruct(state.params, inputs))
-    rows = (
-        [inputs, outputs]
-        if trainer.objective == "reconstruct"
-        else [inputs, targets[: len(shown)], outputs]
-    )
-    log.images("reconstructions/validation", np.concatenate(rows), state.step)
-    train_loss = float(np.mean(losses)) if len(losses) else math.nan
+    """The validation loss and recall@1 (the two curves), six validation examples in rows of
+    input | target | output (reconstruct: the images over their reconstructions;
+    cross_season: both seasons, their mean, the output for each season; none for the
+    contrastive objective, which has no decoder to show), one line."""
+    log.scalar("loss/validation", scored.val_loss, state.step)
+    if not math.isnan(scored.recall_at_1):
+        log.scalar("validation/recall_at_1", scored.recall_at_1, state.step)
+    if trainer.objective != "contrastive":
+        shown = _examples(val_examples, 6)
+        inputs, targets = (
+            np.asarray(x) for x in objectives.inputs_and_targets(trainer.objective, shown)
+        )
+        outputs = np.asarray(trainer.reconstruct(state.params, inputs))
+        rows = (
+            [inputs, outputs]
+            if trainer.objective == "reconstruct"
+            else [inputs, targets[: len(shown)], outputs]
+        )
+        log.images("reconstructions/validation", np.concatenate(rows), state.step)
+    train_loss = f"{float(np.mean(losses)):.5f}" if len(losses) else "-"
+    recall = "" if math.isnan(scored.recall_at_1) else f"  recall@1 {scored.recall_at_1:.3f}"
     best = "  (best)" if state.bad_epochs == 0 else ""
     log.line(
-        f"{name} epoch {state.epoch}/{trainer.settings.epochs}: train loss "
-        f"{train_loss:.5f}  validation loss {val_loss:.5f}{best}"
+        f"{name} epoch {state.epoch}/{trainer.settings.epochs}: train loss {train_loss}  "
+        f"validation loss {scored.val_loss:.5f}{recall}{best}"
     )
+
+
+def score_start(
+    trainer: Trainer,
+    state: TrainState,
+    val_images: np.ndarray,
+    validate: Validate | None,
+    mesh: Mesh | None,
+    log: TrainingLog | None,
+    name: str,
+) -> TrainState:
+    """Score the starting weights as epoch 0: the best so far until an epoch beats them."""
+    scored = score_epoch(trainer, state.params, val_images, validate, mesh)
+    state, _, _ = end_epoch(state, scored, trainer.settings)
+    if log is not None:
+        log_epoch(trainer, state, np.zeros(0), scored, val_images, log, name)
+    return state
 
 
 def _on_devices(train_images: np.ndarray, state: TrainState, mesh: Mesh | None):
@@ -374,6 +461,8 @@ def save_epoch(
     summary = {
         "epoch": state.epoch,
         "step": state.step,
+        "best_epoch": state.best_epoch,
+        "best_score": state.best_score,
         "best_val_loss": state.best_val,
         "bad_epochs": state.bad_epochs,
         "done": done,
@@ -396,53 +485,70 @@ def fit_autoencoder(
     name: str = "auto-encoder",
     mesh: Mesh | None = None,
     objective: str = "reconstruct",
+    validate: Validate | None = None,
+    fixed: dict | None = None,
+    start: Start | None = None,
 ) -> TrainResult:
     """Train (or resume, or restore) one auto-encoder; returns its best parameters.
 
-    ``train_images`` and ``val_images`` are the ``objective``'s examples (images, or aligned
-    pairs ``(n, 2, h, w)``: ``objectives.training_data``). With ``checkpoint_dir`` an epoch
-    is committed once ``checkpoint_every_s`` seconds passed since the last save, and the
-    last epoch always is: a finished model is restored, an unfinished one resumes after its
-    last saved epoch. ``identity`` must match the checkpoint's, so a model of other data or
-    settings is never reused. With a ``mesh`` each batch is split across its devices.
-    """
-    start = time.perf_counter()
+    Examples: ``objectives.training_data``. ``validate(encode)`` scores a model by what it
+    is for (the validation places' recall@1 of its codes); the best epoch (0: the starting
+    weights) is kept and early stopping counts epochs without a better one; without it the
+    validation loss selects. ``fixed``: a removal (``ae.with_removal``); ``start``: other
+    starting weights (``ae.pca_start``; name it in ``identity``). With ``checkpoint_dir``
+    an epoch is committed once ``checkpoint_every_s`` passed, the last always: a finished
+    model is restored, an unfinished one resumes; ``identity`` must match the checkpoint's.
+    With a ``mesh`` each batch is split across its devices."""
+    began = time.perf_counter()
     settings = settings or TrainConfig()
-    train_images = np.asarray(train_images, np.float32)
-    val_images = np.asarray(val_images, np.float32)
-    shape = train_images.shape[2:4] if objective == "cross_season" else train_images.shape[1:3]
-    trainer, fresh = make_trainer(spec, shape, len(train_images), key, settings, mesh, objective)
-    meta = checkpoint_meta(spec, shape, identity, objective)
+    train_images, val_images = (np.asarray(x, np.float32) for x in (train_images, val_images))
+    shape = _image_shape(train_images, objective)
+    trainer, fresh = make_trainer(
+        spec, shape, len(train_images), key, settings, mesh, objective, fixed, start
+    )
+    selected_by = SELECT_LOSS if validate is None else SELECT_RECALL
+    meta = checkpoint_meta(spec, shape, identity, objective, selected_by)
     state, saved = init_or_restore(fresh, checkpoint_dir, meta, log, name)
     if saved is not None and saved["done"]:
-        return _result(trainer, state, stopped_early=saved["stopped_early"], restored=True)
+        return _result(trainer, state, selected_by, saved["stopped_early"], restored=True)
     resumed_epoch, spent = state.epoch, state.seconds
     check_batch_splits(trainer.batch_size, mesh)
     train_dev, state = _on_devices(train_images, state, mesh)
     if log is not None:
         log.begin(state.step)
+    if state.epoch == 0:  # the starting weights compete too
+        state = score_start(trainer, state, val_images, validate, mesh, log, name)
     stopped_early, last_save = False, time.perf_counter()
     while state.epoch < settings.epochs:
         state, losses = train_epoch(trainer, state, train_dev, key, log, name)
-        val_loss = validation_loss(trainer, state, val_images)
-        state, stopped_early, done = end_epoch(state, val_loss, settings)
+        scored = score_epoch(trainer, state.params, val_images, validate, mesh)
+        state, stopped_early, done = end_epoch(state, scored, settings)
         if log is not None:
-            log_epoch(trainer, state, losses, val_loss, val_images, log, name)
-        state = state._replace(seconds=spent + time.perf_counter() - start)
-        due = time.perf_counter() - last_save >= settings.checkpoint_every_s
-        if checkpoint_dir is not None and (due or done):
+            log_epoch(trainer, state, losses, scored, val_images, log, name)
+        state = state._replace(seconds=spent + time.perf_counter() - began)
+        if checkpoint_dir is not None and (done or _due(last_save, settings)):
             save_epoch(checkpoint_dir, state, meta, done=done, stopped_early=stopped_early)
             last_save = time.perf_counter()
         if done:
             break
-    return _result(trainer, state, stopped_early=stopped_early, resumed_epoch=resumed_epoch)
+    return _result(trainer, state, selected_by, stopped_early, resumed_epoch=resumed_epoch)
+
+
+def _image_shape(examples: np.ndarray, objective: str) -> tuple[int, int]:
+    """(height, width) of an objective's examples: images, or pairs of them."""
+    return examples.shape[2:4] if objective in objectives.PAIRED else examples.shape[1:3]
+
+
+def _due(last_save: float, settings: TrainConfig) -> bool:
+    return time.perf_counter() - last_save >= settings.checkpoint_every_s
 
 
 def _result(
     trainer: Trainer,
     state: TrainState,
-    *,
+    selected_by: str,
     stopped_early: bool,
+    *,
     restored: bool = False,
     resumed_epoch: int | None = None,
 ) -> TrainResult:
@@ -454,6 +560,9 @@ def _result(
         epochs=state.epoch,
         steps=state.step,
         best_val_loss=state.best_val,
+        best_score=state.best_score,
+        best_epoch=state.best_epoch,
+        selected_by=selected_by,
         stopped_early=stopped_early,
         restored=restored,
         resumed_epoch=state.epoch if resumed_epoch is None else resumed_epoch,

@@ -12,7 +12,9 @@ coefficients and diff_pca's suffix descriptors serve every count at once (cosine
 suffix ``[k:]`` is the removal of the first k components, one similarity pass for all), ICA
 fits once per count and yields each as soon as it is done. diff_pca and lda learn from the
 alignment of the training places (``aligned_train``). The auto-encoders checkpoint their
-training and report it through the ``MethodContext`` the runner passes in.
+training and report it through the ``MethodContext`` the runner passes in; they select
+their epochs by the validation places' recall@1, which the runner computes for them
+(``MethodContext.validate``): methods make descriptors, never matches.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from vpr_jax.data.pair import PairData
 from vpr_jax.method_table import model_name
 from vpr_jax.methods.autoencoders import autoencoder_spec
 from vpr_jax.methods.descriptors import Descriptors, MethodContext, PCAFit, degenerate_warning
-from vpr_jax.methods.linear import fit_pair_pca, pca_components_needed
+from vpr_jax.methods.linear import fit_pair_pca, pca_components_needed, uses_pca_fit
 
 __all__ = [
     "Descriptors",
@@ -33,4 +35,5 @@ __all__ = [
     "fit_pair_pca",
     "model_name",
     "pca_components_needed",
+    "uses_pca_fit",
 ]

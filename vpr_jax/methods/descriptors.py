@@ -75,6 +75,10 @@ class MethodContext(NamedTuple):
     identity: dict | None = None  # what besides its spec determines a trained model
     mesh: Mesh | None = None  # devices to split work over (vpr_jax.sharding); None: one
     outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed sets, read by the plan
+    # (validation database, validation query descriptors, suffix starts) -> the validation
+    # places' recall@1 per start, as the sweep scores them (the runner matches; methods
+    # never do): what the auto-encoders select epochs by and residual inputs choose k by.
+    validate: Callable[[Array, Array, tuple[int, ...]], list[float]] | None = None
 
 
 def method_key(seed: int, name: str) -> jax.Array:
@@ -97,7 +101,8 @@ def _encode(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array, flo
     return db, query, 1000 * (seconds_db + seconds_q) / (len(pair.db) + len(pair.query))
 
 
-def _encode_val(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array]:
+def encode_validation(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array]:
+    """(validation database, validation queries) descriptors of ``encode``."""
     if pair.aligned_training:  # one call: the shapes the training already compiled for
         both = encode(pair.val)
         return both[: len(pair.val_db)], both[len(pair.val_db) :]
@@ -141,7 +146,7 @@ def describe(
     """Encode the pair with ``encode`` and add the degenerate-descriptor check's warning."""
     db, query, ms = _encode(encode, pair)
     found = "; ".join(w for w in (warning, degenerate_warning(db, query)) if w) or None
-    val_db, val_query = _encode_val(encode, pair)
+    val_db, val_query = encode_validation(encode, pair)
     return Descriptors(
         method=method,
         removed_pcs=tuple(removed_pcs),

@@ -15,6 +15,7 @@ from vpr_jax.data.pair import PairData
 from vpr_jax.encoders import diff_pca, ica, lda, pca
 from vpr_jax.encoders.saved import encode_centred
 from vpr_jax.errors import UserError
+from vpr_jax.method_table import TRAINED, MethodInfo
 from vpr_jax.methods.descriptors import (
     Descriptors,
     Fitted,
@@ -28,15 +29,25 @@ from vpr_jax.methods.descriptors import (
 SAVED = "vpr_jax.encoders.saved"  # where a saved state's encode functions live
 
 
+def uses_pca_fit(method: MethodInfo, cfg: SweepConfig) -> bool:
+    """Whether a method's context needs the pair's PCA fit: the linear methods built on it,
+    and an auto-encoder whose input is the PCA residual (``fae.input=residual``)."""
+    return method.uses_pca_fit or (method.trained and getattr(cfg, method.name).input == "residual")
+
+
+def _residual_inputs(cfg: SweepConfig) -> bool:
+    return any(m in cfg.methods and getattr(cfg, m).input == "residual" for m in TRAINED)
+
+
 def pca_components_needed(cfg: SweepConfig, n_samples: int, n_features: int) -> int | None:
     """How many leading components the pair's PCA fit must hold for the methods that use it:
-    the largest removed count (pca), that plus ``ica.n_components`` (ica; None for "all",
-    which needs every component), ``lda.n_components`` (lda); at least 1, at most the rank
-    limit. From the configured counts, not the ones still to do, so a resumed sweep fits
-    the same components."""
+    the largest removed count (pca, a residual-input auto-encoder), that plus
+    ``ica.n_components`` (ica; None for "all", which needs every component),
+    ``lda.n_components`` (lda); at least 1, at most the rank limit. From the configured
+    counts, not the ones still to do, so a resumed sweep fits the same components."""
     limit = pca.rank_limit(n_samples, n_features)
     needed = [1]
-    if "pca" in cfg.methods:
+    if "pca" in cfg.methods or _residual_inputs(cfg):
         needed.append(max(cfg.removed_pcs))
     if "ica" in cfg.methods:
         if cfg.ica.n_components in (None, "all"):

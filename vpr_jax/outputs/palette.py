@@ -17,7 +17,7 @@ from vpr_jax.outputs.results import ResultRow
 
 # tensorboardColorBlindAssist, the palette of TensorBoard's SCALARS and PR CURVES dashboards
 TB_PALETTE = ("#ff7043", "#0077bb", "#cc3311", "#33bbee", "#ee3377", "#009988", "#bbbbbb")
-_OBJECTIVE_ORDER = ("", "reconstruct", "cross_season")
+_OBJECTIVE_ORDER = ("", "reconstruct", "cross_season", "contrastive")
 
 
 def label_of(row: ResultRow) -> str:

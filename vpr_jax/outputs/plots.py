@@ -17,12 +17,14 @@ import numpy as np  # noqa: E402
 
 from vpr_jax.method_table import SWEEPS_REMOVED_PCS  # noqa: E402
 from vpr_jax.outputs.palette import label_of, styles  # noqa: E402
-from vpr_jax.outputs.results import ResultRow, selected_rows  # noqa: E402
+from vpr_jax.outputs.results import ResultRow, best_objectives, selected_rows  # noqa: E402
 
 
-def _label(row: ResultRow) -> str:
+def _label(row: ResultRow, best: set[str] = frozenset()) -> str:
+    """The legend's name of a row: its count where it has one; "best" on the objective a
+    method's validation recall prefers (``best_objectives``)."""
     k = f" (k={row.removed_pcs})" if row.method in SWEEPS_REMOVED_PCS else ""
-    return label_of(row) + k
+    return label_of(row) + k + (" best" if row.run in best else "")
 
 
 def _save(fig, path: Path) -> None:
@@ -48,6 +50,7 @@ def pr_curves_figure(rows: list[ResultRow], load_curve: Callable[[ResultRow], tu
     """One panel per season pair, one line per method (PCA at its validation-selected
     removed-PC count)."""
     best = selected_rows(_shortest_sequences(rows))
+    preferred = best_objectives(best)
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
     style = styles(rows)
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
@@ -56,7 +59,8 @@ def pr_curves_figure(rows: list[ResultRow], load_curve: Callable[[ResultRow], tu
         for label in (x for x in style if x in mine):
             row = mine[label]
             precision, recall = load_curve(row)
-            ax.plot(recall, precision, label=f"{_label(row)}  AUC {row.auc_pr:.2f}", **style[label])
+            name = _label(row, preferred)
+            ax.plot(recall, precision, label=f"{name}  AUC {row.auc_pr:.2f}", **style[label])
         ax.set(title=pair, xlabel="recall", ylabel="precision", xlim=(0, 1.01), ylim=(0, 1.02))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower left")

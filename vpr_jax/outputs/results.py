@@ -162,6 +162,17 @@ def selected_rows(rows: list[ResultRow]) -> list[ResultRow]:
     return [r for r in mark_selected(rows) if r.selected]
 
 
+def best_objectives(rows: list[ResultRow]) -> set[str]:
+    """The runs of the selected rows that are their method's best objective: per pair,
+    method and ds with more than one objective, the selected row with the best validation
+    recall@1 (then AUC-PR; the first objective on a tie), as ``mark_selected`` ranks."""
+    groups: dict[tuple, list[ResultRow]] = {}
+    for row in selected_rows(rows):
+        if row.objective:
+            groups.setdefault((row.season_pair, row.method, row.ds), []).append(row)
+    return {max(group, key=_val_score).run for group in groups.values() if len(group) > 1}
+
+
 def baseline_of(row: ResultRow, selected: list[ResultRow]) -> ResultRow | None:
     """The seed's baseline for a selected row: its pair's selected PCA row at the same ds."""
     for other in selected:

@@ -1,0 +1,83 @@
+"""The recognition options end to end on the built-in route: residual input, the linear
+start, the contrastive objective and ``train.augment=auto`` train, checkpoint and restore in
+a subprocess sweep, and the epoch and model kept are the ones the validation places' recall
+chooses, the same recall the sweep reports for the cell."""
+
+import csv
+
+import pytest
+
+from tests.conftest import read_run, run_cli
+from vpr_jax.outputs.results import read_results
+
+ARGS = [
+    "data.n_frames=500",
+    "split.n_train=240",
+    "split.n_test=80",
+    "split.gap=10",
+    "season_pairs=summer-fall",
+    "methods=[pca,fae,cae]",
+    "removed_pcs=[0,5,20]",
+    "fae.hidden=16",
+    "fae.input=residual",
+    "fae.init=pca",
+    "fae.objective=contrastive",
+    "cae.input=residual",
+    "cae.objective=cross_season",
+    "cae.channels=[4,8]",
+    "cae.code_channels=2",
+    "train.epochs=2",
+    "fae.epochs=3",
+    "train.augment=auto",
+]
+MODELS = {"fae": "fae_contrastive", "cae": "cae_cross_season"}
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    logdir = tmp_path_factory.mktemp("recognition") / "runs"
+    proc = run_cli(*ARGS, f"logdir={logdir}")
+    assert proc.returncode == 0, proc.stderr
+    return logdir, proc
+
+
+def _recall_curve(run_dir) -> list[float]:
+    return [e.value for e in read_run(run_dir).Scalars("validation/recall_at_1")]
+
+
+def test_the_kept_model_and_epoch_are_validation_recall_s_choice(sweep):
+    logdir, proc = sweep
+    rows = {r.method: r for r in read_results(logdir / "results.csv")}
+    with open(logdir / "encoders.csv") as f:
+        folders = {e["method"]: e["folder"] for e in csv.DictReader(f)}
+    pca_k = next(
+        r for r in read_results(logdir / "results.csv") if r.method == "pca" and r.selected
+    )
+    for method, model in MODELS.items():
+        row = rows[method]
+        curves = {
+            variant: _recall_curve(logdir / "summer-fall" / f"{model}_{variant}_training")
+            for variant in ("augmented", "plain")
+        }
+        epochs = 3 if method == "fae" else 2
+        assert all(len(c) == epochs + 1 for c in curves.values())  # epoch 0 and every epoch
+        kept = max(curves, key=lambda v: max(curves[v]))  # the first on a tie: augmented
+        assert folders[method].endswith(f"{model}_{kept}")
+        # The recall that chose the epoch is the recall the sweep reports for the cell.
+        assert row.val_recall_at_1 == pytest.approx(max(curves[kept]), abs=1e-6)
+        line = f"summer-fall {model}_{kept}: input residual, {pca_k.removed_pcs} leading"
+        assert line in proc.stdout  # k: PCA's validation-selected count
+
+
+def test_a_second_sweep_restores_every_model_and_scores_the_same(sweep, tmp_path):
+    logdir, _ = sweep
+    again = tmp_path / "runs"  # the same logdir name: the same checkpoint folders
+    proc = run_cli(
+        *ARGS, f"logdir={again}", f"train.checkpoint_dir={logdir.parent / 'checkpoints'}"
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.count("restored the trained model") == 4  # two variants per method
+    assert "validation loss" not in proc.stdout  # nothing trained again
+    first = {r.method: r.recall_at_1 for r in read_results(logdir / "results.csv") if r.selected}
+    second = {r.method: r.recall_at_1 for r in read_results(again / "results.csv") if r.selected}
+    assert second == pytest.approx(first, abs=1e-6)

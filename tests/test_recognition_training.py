@@ -1,0 +1,215 @@
+"""Auto-encoders trained for recognition: epochs selected by the validation places' recall@1,
+the contrastive objective and the residual input, each against an oracle (numpy,
+scikit-learn), and interrupted training that resumes to the same selection."""
+
+import jax
+import numpy as np
+import pytest
+from flax import nnx
+from sklearn.decomposition import PCA
+
+from tests.conftest import numpy_cosine, read_run, tail_validation
+from vpr_jax.config import TrainConfig
+from vpr_jax.data.synthetic import synthetic_route
+from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.encoders import objectives
+from vpr_jax.encoders.saved import load_encoder
+from vpr_jax.encoders.train import SELECT_RECALL, fit_autoencoder
+from vpr_jax.outputs.tb import TrainingRun
+
+
+def _numpy_recall_at_1(db, query, tolerance: int = 1) -> float:
+    """The oracle: query i's nearest database row by cosine is correct within the
+    tolerance (row i of the database is query i's place)."""
+    query, db = (np.asarray(x, np.float64) + 1e-12 for x in (query, db))  # zero codes: ties
+    best = np.argmax(numpy_cosine(query, db), axis=1)
+    return float(np.mean(np.abs(best - np.arange(len(query))) <= tolerance))
+
+
+def _validate_on(val_db, val_query):
+    """``fit_autoencoder``'s validate: the validation places' recall@1 of a model's codes."""
+    return lambda encode: _numpy_recall_at_1(encode(val_db), encode(val_query))
+
+
+@pytest.fixture(scope="module")
+def seasons():
+    route = synthetic_route(160, ("summer", "winter"), 3)
+    return route.images["summer"], route.images["winter"]
+
+
+def test_contrastive_loss_is_infonce_both_ways():
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(6, 5)), rng.normal(size=(6, 5))
+    got = np.asarray(objectives.contrastive_loss(a, b, 0.2))
+    sims = numpy_cosine(a, b) / 0.2
+
+    def cross_entropy(logits):  # row i's right column is i
+        logits = logits - logits.max(axis=1, keepdims=True)
+        log_p = logits - np.log(np.exp(logits).sum(axis=1, keepdims=True))
+        return -np.diagonal(log_p)
+
+    np.testing.assert_allclose(got, (cross_entropy(sims) + cross_entropy(sims.T)) / 2, rtol=1e-5)
+    # A batch whose places match their other season exactly scores far lower.
+    assert np.mean(objectives.contrastive_loss(a, a, 0.2)) < np.mean(got)
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [
+        ae.FAESpec(hidden=8, standardise=True, removed=4),
+        ae.CAESpec(
+            channels=(4, 8), kernel_sizes=(3, 3), code_channels=2, space_to_depth=2, removed=4
+        ),
+    ],
+)
+def test_residual_input_is_pca_change_removal(spec, seasons):
+    images = np.concatenate(seasons)[:200]
+    fit = PCA(n_components=4, svd_solver="full").fit(images.reshape(len(images), -1))
+    graphdef, params = ae.build(spec, jax.random.key(0))
+    params = ae.with_removal(params, fit.mean_, fit.components_)
+    model = nnx.merge(graphdef, params)
+    # scikit-learn's change removal: the centred image less its projection, at mid-grey
+    flat = images.reshape(len(images), -1)
+    expected = flat - fit.mean_ - fit.inverse_transform(fit.transform(flat)) + fit.mean_ + 0.5
+    np.testing.assert_allclose(
+        np.asarray(model.residual(images)).reshape(len(images), -1), expected, atol=2e-5
+    )
+    # The code is the plain model's code of the residual image.
+    plain_graphdef, _ = ae.build(spec._replace(removed=0), jax.random.key(0))
+    plain, _ = ae.split_fixed(params)
+    np.testing.assert_allclose(
+        ae.make_encode(graphdef)(params, images[:8]),
+        ae.make_encode(plain_graphdef)(plain, np.asarray(model.residual(images[:8]))),
+        atol=1e-5,
+    )
+
+
+def test_training_never_moves_the_removal_and_the_saved_encoder_keeps_it(seasons, tmp_path):
+    images = np.concatenate(seasons)
+    train, val = tail_validation(images, 2, 0.1)
+    fit = PCA(n_components=3, svd_solver="full").fit(train.reshape(len(train), -1))
+    fixed = {"removal_mean": fit.mean_, "removal_basis": fit.components_}
+    spec = ae.FAESpec(hidden=8, standardise=True, removed=3)
+    settings = TrainConfig(epochs=2, batch_size=32, optimizer="adamw", checkpoint_every_s=0)
+    result = fit_autoencoder(
+        spec, train, val, jax.random.key(0), settings, checkpoint_dir=tmp_path / "m", fixed=fixed
+    )
+    for name, value in fixed.items():  # adamw's weight decay would move any trained array
+        np.testing.assert_array_equal(result.params[name], np.float32(value))
+    encode, params = load_encoder(tmp_path / "m")
+    np.testing.assert_array_equal(
+        encode(params, val[:5]), ae.make_encode(result.graphdef)(result.params, val[:5])
+    )
+
+
+def _curves(run_dir) -> tuple[list[float], list[float]]:
+    """(validation loss, validation recall@1) per epoch, epoch 0 first, as TensorBoard
+    reads them back."""
+    ea = read_run(run_dir)
+    loss = [e.value for e in ea.Scalars("loss/validation")]
+    return loss, [e.value for e in ea.Scalars("validation/recall_at_1")]
+
+
+def test_the_epoch_kept_is_the_best_validation_recall_not_the_least_loss(seasons, tmp_path):
+    """Reconstructing raw pixels: the loss falls every epoch while the code learns the
+    seasons' appearance, and recall on the validation places peaks elsewhere."""
+    summer, winter = seasons
+    n_val = 30
+    train = np.concatenate([summer[:-n_val], winter[:-n_val]])
+    val = np.concatenate([summer[-n_val:], winter[-n_val:]])
+    validate = _validate_on(summer[-n_val:], winter[-n_val:])
+    settings = TrainConfig(epochs=8, batch_size=32, patience=20, augment=False)
+    log = TrainingRun(tmp_path / "tb", lambda line: None)
+    try:
+        result = fit_autoencoder(
+            ae.FAESpec(hidden=16),
+            train,
+            val,
+            jax.random.key(0),
+            settings,
+            validate=validate,
+            log=log,
+        )
+    finally:
+        log.close()
+    loss, recall = _curves(tmp_path / "tb")
+    assert len(loss) == len(recall) == 9  # the starting weights, then every epoch
+    assert int(np.argmin(loss)) != int(np.argmax(recall))  # they disagree here
+    assert result.selected_by == SELECT_RECALL
+    assert result.best_epoch == int(np.argmax(recall))  # the first of equals
+    assert result.best_score == pytest.approx(max(recall))
+    encode = ae.make_encode(result.graphdef)
+    assert validate(lambda x: encode(result.params, x)) == pytest.approx(max(recall))
+    assert result.best_val_loss == pytest.approx(loss[result.best_epoch], rel=1e-6)
+
+
+class _StopAfter:
+    """A training log that interrupts training at one step, like Ctrl-C would."""
+
+    def __init__(self, step: int):
+        self.step = step
+
+    def begin(self, step):
+        pass
+
+    def scalar(self, tag, value, step):
+        if step == self.step:
+            raise KeyboardInterrupt
+
+    def images(self, tag, images, step):
+        pass
+
+    def line(self, text):
+        pass
+
+    def close(self):
+        pass
+
+
+def test_a_contrastive_run_resumed_selects_as_the_uninterrupted_one(seasons, tmp_path):
+    summer, winter = seasons
+    n_val = 30
+    pairs = np.stack([summer, winter], axis=1)
+    train, val = pairs[:-n_val], pairs[-n_val:]
+    validate = _validate_on(summer[-n_val:], winter[-n_val:])
+    settings = TrainConfig(epochs=4, batch_size=32, patience=10, checkpoint_every_s=0)
+
+    def fit(folder, log=None):
+        return fit_autoencoder(
+            ae.FAESpec(hidden=16, standardise=True),
+            train,
+            val,
+            jax.random.key(1),
+            settings,
+            checkpoint_dir=tmp_path / folder,
+            objective="contrastive",
+            validate=validate,
+            log=log,
+        )
+
+    whole = fit("whole")
+    steps_per_epoch = len(train) // 16  # 32 images a step: 16 places
+    with pytest.raises(KeyboardInterrupt):
+        fit("cut", _StopAfter(2 * steps_per_epoch + 2))
+    resumed = fit("cut")
+    assert resumed.resumed_epoch == 2
+    assert (resumed.best_epoch, resumed.best_score) == (whole.best_epoch, whole.best_score)
+    for a, b in zip(jax.tree.leaves(resumed.params), jax.tree.leaves(whole.params), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_the_linear_start_codes_are_the_pca_coefficients_of_the_inputs(seasons):
+    images = np.concatenate(seasons)[:240]
+    graphdef, drawn = ae.build(ae.FAESpec(hidden=9, standardise=True), jax.random.key(0))
+    params = ae.pca_start(graphdef, drawn, images)
+    model = nnx.merge(graphdef, params)
+    inputs = np.asarray(model.inputs(images), np.float64)
+    expected = PCA(n_components=4, svd_solver="full").fit(inputs).transform(inputs)
+    codes = np.asarray(model.encode(images), np.float64)
+    coefficients = codes[:, 0:8:2] - codes[:, 1:8:2]  # a unit beside its negative
+    signs = np.sign(np.sum(coefficients * expected, axis=0))  # components' signs are free
+    np.testing.assert_allclose(coefficients * signs, expected, atol=2e-3 * np.abs(expected).max())
+    np.testing.assert_array_equal(
+        params["encoder"]["kernel"][:, 8], drawn["encoder"]["kernel"][:, 8]
+    )
+    np.testing.assert_allclose(params["decoder"]["kernel"], params["encoder"]["kernel"].T)
