@@ -311,10 +311,11 @@ def pca_start(graphdef, params: dict, images: Float[Array, "n h w"]) -> dict:
     the ReLU code keeps both signs of every coefficient, and the bias centres the inputs at
     their mean. The decoder starts at the encoder's transpose. A code of this start matches
     like PCA's coefficients (within the units' clipping); training then keeps an epoch only
-    where the validation places' recall improves on it. An odd last unit keeps its draw."""
+    where the validation places' recall improves on it. Units beyond twice the components
+    the inputs have (an odd last unit, a small training set) keep their draw."""
     inputs = _model_inputs(graphdef, params, jnp.asarray(images, jnp.float32))
     kernel = params["encoder"]["kernel"]
-    n_units = kernel.shape[1] // 2
+    n_units = min(kernel.shape[1] // 2, pca.rank_limit(*inputs.shape))
     state = pca.fit_pca(inputs, n_units, seed=0)
     components = state.components.T.astype(kernel.dtype)  # (pixels, n_units)
     paired = jnp.stack([components, -components], axis=2).reshape(kernel.shape[0], -1)
