@@ -100,6 +100,12 @@ def test_training_never_moves_the_removal_and_the_saved_encoder_keeps_it(seasons
     np.testing.assert_array_equal(
         encode(params, val[:5]), ae.make_encode(result.graphdef)(result.params, val[:5])
     )
+    again = fit_autoencoder(
+        spec, train, val, jax.random.key(0), settings, checkpoint_dir=tmp_path / "m", fixed=fixed
+    )  # a finished model is restored, its removal with it
+    assert again.restored
+    for a, b in zip(jax.tree.leaves(again.params), jax.tree.leaves(result.params), strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def _curves(run_dir) -> tuple[list[float], list[float]]:

@@ -7,8 +7,9 @@ kept. Each step holds two items:
   optimizer state, best parameters so far and the counters), one pytree, restored against
   a target so optax states keep their types and the counters their exact values;
 - ``meta`` (JSON): the model ``spec``, the image shape, an ``identity`` of everything that
-  determines the weights, ``done`` / ``stopped_early`` and a readable summary (epoch, step,
-  best validation loss, training seconds).
+  determines the weights, how epochs are selected (``selected_by``), ``done`` /
+  ``stopped_early`` and a readable summary (epoch, step, the best epoch, its score and
+  validation loss, training seconds).
 
 The metadata carry ``format`` (``FORMAT``); a folder of another format is refused (one
 line: use a new folder), never read into today's state.

@@ -72,6 +72,8 @@ class Removal(NamedTuple):
 def pca_removal(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Removal:
     """The count PCA change removal chooses on the validation places (the best validation
     recall@1 among ``removed_pcs``, the fewest on a tie), from the pair's PCA fit."""
+    if ctx.pca_fit is None or ctx.validate is None:
+        raise ValueError("input=residual needs the pair's PCA fit and ctx.validate (the runner's)")
     state = ctx.pca_fit.state
     counts = sorted(k for k in cfg.removed_pcs if k <= state.components.shape[0])
     recalls = ctx.validate(
