@@ -145,7 +145,7 @@ def test_an_objective_list_is_one_value_or_many():
         (["cae.model=huge"], ["cae.model=huge", "fast or calc"]),
         (["fae.input=edges"], ["fae.input=edges", "pixels or residual"]),
         (["cae.input=edges"], ["cae.input=edges", "pixels or residual"]),
-        (["fae.init=xavier"], ["fae.init=xavier", "random or pca"]),
+        (["fae.init=xavier"], ["fae.init=xavier", "random, pca, whitened_pca"]),
         (["train.augment=maybe"], ["train.augment=maybe", "true, false or auto"]),
         (["train.temperature=0"], ["train.temperature=0", "> 0"]),
     ],

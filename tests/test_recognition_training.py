@@ -204,13 +204,15 @@ def test_a_contrastive_run_resumed_selects_as_the_uninterrupted_one(seasons, tmp
         np.testing.assert_array_equal(a, b)
 
 
-def test_the_linear_start_codes_are_the_pca_coefficients_of_the_inputs(seasons):
+@pytest.mark.parametrize("whiten", [False, True])
+def test_the_linear_start_codes_are_the_pca_coefficients_of_the_inputs(seasons, whiten):
     images = np.concatenate(seasons)[:240]
     graphdef, drawn = ae.build(ae.FAESpec(hidden=9, standardise=True), jax.random.key(0))
-    params = ae.pca_start(graphdef, drawn, images)
+    params = ae.pca_start(graphdef, drawn, images, whiten=whiten)
     model = nnx.merge(graphdef, params)
     inputs = np.asarray(model.inputs(images), np.float64)
-    expected = PCA(n_components=4, svd_solver="full").fit(inputs).transform(inputs)
+    oracle = PCA(n_components=4, svd_solver="full", whiten=whiten)  # whiten: unit variance
+    expected = oracle.fit(inputs).transform(inputs)
     codes = np.asarray(model.encode(images), np.float64)
     coefficients = codes[:, 0:8:2] - codes[:, 1:8:2]  # a unit beside its negative
     signs = np.sign(np.sum(coefficients * expected, axis=0))  # components' signs are free
@@ -219,3 +221,5 @@ def test_the_linear_start_codes_are_the_pca_coefficients_of_the_inputs(seasons):
         params["encoder"]["kernel"][:, 8], drawn["encoder"]["kernel"][:, 8]
     )
     np.testing.assert_allclose(params["decoder"]["kernel"], params["encoder"]["kernel"].T)
+    if whiten:
+        np.testing.assert_allclose(np.var(coefficients, axis=0, ddof=1), 1.0, rtol=1e-2)

@@ -31,7 +31,7 @@ OBJECTIVES = ("reconstruct", "cross_season", "contrastive")
 PAIRED_OBJECTIVES = ("cross_season", "contrastive")
 DEFAULT_OBJECTIVES = ("reconstruct", "cross_season")
 AE_INPUTS = ("pixels", "residual")  # what the auto-encoders see: fae.input, cae.input
-FAE_INITS = ("random", "pca")  # how the FAE's weights start: fae.init
+FAE_INITS = ("random", "pca", "whitened_pca")  # how the FAE's weights start: fae.init
 SOURCE_FREE_PRESETS = ("real",)  # presets that set no data keys: their logdirs name the source
 AUGMENT = (True, False, "auto")
 OPTIMIZERS = ("adam", "adamw", "sgd")
@@ -293,7 +293,8 @@ class FAEConfig:
     input: str = "pixels"
     # random: drawn weights; pca: the linear start, the hidden layer at the PCA solution of
     # its own inputs for hidden // 2 components, each unit beside its negative
-    # (vpr_jax.encoders.autoencoders.pca_start): training keeps only what beats it.
+    # (vpr_jax.encoders.autoencoders.pca_start): training keeps only what beats it;
+    # whitened_pca: the same with every component scaled to unit variance.
     init: str = "random"
     # Subtracted from every pixel before the hidden layer; 0 is the seed's layer, on which
     # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
@@ -304,7 +305,7 @@ class FAEConfig:
         _check_objectives(self, "fae")
         _check_input(self, "fae")
         _check(
-            self.init in FAE_INITS, f"fae.init={self.init} is unknown: use {' or '.join(FAE_INITS)}"
+            self.init in FAE_INITS, f"fae.init={self.init} is unknown: use {', '.join(FAE_INITS)}"
         )
         _check(self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1")
         _check(

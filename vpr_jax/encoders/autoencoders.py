@@ -304,20 +304,25 @@ def make_reconstruct(graphdef) -> Callable:
     return reconstruct
 
 
-def pca_start(graphdef, params: dict, images: Float[Array, "n h w"]) -> dict:
+def pca_start(graphdef, params: dict, images: Float[Array, "n h w"], whiten: bool = False) -> dict:
     """An FAE's parameters started at the linear solution for its code size (the "linear
     start"): PCA of the hidden layer's own inputs (``FAE.inputs`` of the training images)
     gives the leading ``hidden // 2`` components; each becomes a unit and its negative, so
     the ReLU code keeps both signs of every coefficient, and the bias centres the inputs at
     their mean. The decoder starts at the encoder's transpose. A code of this start matches
     like PCA's coefficients (within the units' clipping); training then keeps an epoch only
-    where the validation places' recall improves on it. Units beyond twice the components
-    the inputs have (an odd last unit, a small training set) keep their draw."""
+    where the validation places' recall improves on it. ``whiten``: each component scaled
+    to unit variance (PCA whitening), so the few directions of largest variance, on real
+    frames the season and the light, weigh no more in the code than any other. Units
+    beyond twice the components the inputs have (an odd last unit, a small training set)
+    keep their draw."""
     inputs = _model_inputs(graphdef, params, jnp.asarray(images, jnp.float32))
     kernel = params["encoder"]["kernel"]
     n_units = min(kernel.shape[1] // 2, pca.rank_limit(*inputs.shape))
     state = pca.fit_pca(inputs, n_units, seed=0)
     components = state.components.T.astype(kernel.dtype)  # (pixels, n_units)
+    if whiten:
+        components = components / jnp.sqrt(state.explained_variance + 1e-12).astype(kernel.dtype)
     paired = jnp.stack([components, -components], axis=2).reshape(kernel.shape[0], -1)
     kernel = kernel.at[:, : 2 * n_units].set(paired)
     bias = params["encoder"]["bias"].at[: 2 * n_units].set(-(state.mean @ paired))

@@ -160,9 +160,10 @@ def _train(
             f"(PCA's validation-selected count, validation recall@1 {removal.val_recall_at_1:.3f})"
         )
     start, identity = None, {**(ctx.identity or {}), "input": getattr(cfg, method).input}
-    if method == "fae" and cfg.fae.init == "pca":
-        start = functools.partial(ae.pca_start, images=pair.train)
-        identity["init"] = "pca"
+    if method == "fae" and cfg.fae.init != "random":
+        whiten = cfg.fae.init == "whitened_pca"
+        start = functools.partial(ae.pca_start, images=pair.train, whiten=whiten)
+        identity["init"] = cfg.fae.init
     validate = None
     if ctx.validate is not None:
         validate = lambda encode: ctx.validate(*encode_validation(encode, pair), (0,))[0]  # noqa: E731
