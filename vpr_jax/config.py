@@ -33,7 +33,6 @@ DEFAULT_OBJECTIVES = ("reconstruct", "cross_season")
 AE_INPUTS = ("pixels", "residual")  # what the auto-encoders see: fae.input, cae.input
 FAE_INITS = ("random", "pca", "whitened_pca")  # how the FAE's weights start: fae.init
 SOURCE_FREE_PRESETS = ("real",)  # presets that set no data keys: their logdirs name the source
-AUGMENT = (True, False, "auto")
 OPTIMIZERS = ("adam", "adamw", "sgd")
 PREPROCESSES = ("none", "patchnorm")
 # How PR recall counts (vpr_jax.evaluation.metrics, which config does not import).
