@@ -20,7 +20,7 @@ import numpy as np
 
 from vpr_jax.data.route import IMAGE_SHAPE
 from vpr_jax.data.synthetic import DEFAULT_N_FRAMES, SEASONS, render_season
-from vpr_jax.errors import UserError
+from vpr_jax.errors import UserError, exit_code
 
 LABEL_WIDTH = 72  # pixels left of the images, for the season names
 HEADER_HEIGHT = 16  # pixels above the images, for the frame ids
@@ -110,22 +110,20 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    try:
-        args = _parse(argv)
-        places = spread_places(args.n_places, args.n_frames)
-        images = {s: render_season(places, s, seed=args.seed) for s in args.seasons}
-        sheet = make_sheet(images, places, args.scale)
-        out = Path(args.out)
-        if out.is_dir():
-            raise UserError(f"--out {out} is a folder: name a .png file")
-        out.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(out), sheet):
-            raise UserError(f"could not write {out}: check the folder is writable")
-    except UserError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+    return exit_code(lambda: _write_sheet(_parse(argv)))
+
+
+def _write_sheet(args: argparse.Namespace) -> None:
+    places = spread_places(args.n_places, args.n_frames)
+    images = {s: render_season(places, s, seed=args.seed) for s in args.seasons}
+    sheet = make_sheet(images, places, args.scale)
+    out = Path(args.out)
+    if out.is_dir():
+        raise UserError(f"--out {out} is a folder: name a .png file")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out), sheet):
+        raise UserError(f"could not write {out}: check the folder is writable")
     print(out)
-    return 0
 
 
 if __name__ == "__main__":

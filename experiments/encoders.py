@@ -15,7 +15,7 @@ import csv
 import sys
 from pathlib import Path
 
-from vpr_jax.errors import UserError
+from vpr_jax.errors import UserError, exit_code
 from vpr_jax.outputs.logdir import ENCODERS_CSV, LISTING
 
 
@@ -58,12 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("logdir", help="a sweep's logdir, e.g. runs/quick")
     args = parser.parse_args(argv)
-    try:
-        print(format_listing(read_listing(Path(args.logdir))))
-    except UserError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    return 0
+    return exit_code(lambda: print(format_listing(read_listing(Path(args.logdir)))))
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import NamedTuple
 
-from vpr_jax.errors import UserError
+from vpr_jax.errors import UserError, exit_code
 
 USAGE = (
     "python -m experiments.export LOGDIR [out=DIR] [top_k=10] [all_settings=false] "
@@ -84,16 +84,15 @@ def check_paths(opts: ExportOptions) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    try:
-        opts = parse_args(argv)
-        check_paths(opts)
-        from experiments.export_cells import export  # JAX: after the cheap checks
+    return exit_code(lambda: _export(argv))
 
-        export(opts.logdir, opts.out, top_k=opts.top_k, all_settings=opts.all_settings, log=print)
-    except UserError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    return 0
+
+def _export(argv: list[str]) -> None:
+    opts = parse_args(argv)
+    check_paths(opts)
+    from experiments.export_cells import export  # JAX: after the cheap checks
+
+    export(opts.logdir, opts.out, top_k=opts.top_k, all_settings=opts.all_settings, log=print)
 
 
 if __name__ == "__main__":

@@ -260,6 +260,7 @@ def markdown_table(rows: list[ResultRow], differences: dict[str, Difference] | N
     run), then the best count chosen on the test queries (optimistic), then every cell.
     The ds column appears once a sweep holds sequence-matching cells."""
     sequences = any(r.ds != 1 for r in rows)
+    preferred = best_objectives(rows)  # runs marked "best"
     first = rows[0] if rows else None
     intro = (
         f"{first.n_test} queries per pair, a match is correct within {first.ground_truth}, "
@@ -277,8 +278,8 @@ def markdown_table(rows: list[ResultRow], differences: dict[str, Difference] | N
         "",
         SELECTION_NOTE,
         "",
-        *_headline(selected_rows(rows), differences or {}, sequences),
-        *_best_objective_note(rows),
+        *_headline(selected_rows(rows), differences or {}, sequences, preferred),
+        *_best_objective_note(rows, preferred),
         "",
         "## Best removed-PC count per method, chosen on the test queries (optimistic)",
         "",
@@ -330,9 +331,12 @@ def _versus_pca(row: ResultRow, differences: dict[str, Difference]) -> tuple[str
 
 
 def _headline(
-    rows: list[ResultRow], differences: dict[str, Difference], sequences: bool
+    rows: list[ResultRow],
+    differences: dict[str, Difference],
+    sequences: bool,
+    preferred: set[str],
 ) -> list[str]:
-    body, preferred = [], best_objectives(rows)
+    body = []
     for r in _in_order(rows):
         versus, label = _versus_pca(r, differences)
         body.append(
@@ -354,12 +358,12 @@ def _headline(
     return _markdown(_without_ds(HEADLINE_COLUMNS, sequences), body)
 
 
-def _best_objective_note(rows: list[ResultRow]) -> list[str]:
+def _best_objective_note(rows: list[ResultRow], preferred: set[str]) -> list[str]:
     """A line naming each auto-encoder's best objective per pair (marked "best" above)."""
-    preferred = [r for r in selected_rows(rows) if r.run in best_objectives(rows)]
-    if not preferred:
+    best = [r for r in rows if r.run in preferred]
+    if not best:
         return []
-    named = ", ".join(f"{r.season_pair} {r.method} {r.objective}" for r in _in_order(preferred))
+    named = ", ".join(f"{r.season_pair} {r.method} {r.objective}" for r in _in_order(best))
     return ["", f"Best objective by validation recall@1 (marked best): {named}."]
 
 

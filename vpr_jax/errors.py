@@ -1,5 +1,10 @@
 """The one exception type for mistakes a user can fix (bad data, bad config, bad paths)."""
 
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
 
 def first_line(err: BaseException) -> str:
     """``TypeName: the first line of its message`` (``TypeName`` when it has none): what a
@@ -20,3 +25,14 @@ class UserError(Exception):
     def __init__(self, message: str, detail: str | None = None):
         super().__init__(message)
         self.detail = detail
+
+
+def exit_code(work: Callable[[], object]) -> int:
+    """A command line's ``work()`` as its exit code: 0 when it ends, 2 with the error's one
+    line on stderr when it raises ``UserError``."""
+    try:
+        work()
+    except UserError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return 0

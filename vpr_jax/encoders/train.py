@@ -1,8 +1,8 @@
 """Training an auto-encoder: raw optax, a jitted train step, early stopping, resumable.
 
 ``train_step(params, opt_state, batch, key) -> (params, opt_state, metrics)`` augments the
-batch (Table 2 of the seed: horizontal flip, width and height shift 0.2), reconstructs it
-and takes one optimizer step on the mean squared error.
+batch (Table 2 of the seed: horizontal flip, width and height shift 0.2) and takes one
+optimizer step on the objective's loss (``vpr_jax.encoders.objectives``).
 
 ``fit_autoencoder`` is a short loop over named steps on one ``TrainState``:
 ``init_or_restore`` (a fresh state, or the checkpoint's), then per epoch ``train_epoch``
@@ -14,9 +14,10 @@ starting weights are scored too (epoch 0): training is kept only where it improv
 
 Selecting by recognition, not by the loss: an auto-encoder's validation loss keeps falling
 while its code learns more of the season and the light, which recognition must ignore; on
-real frames the epoch of least loss is rarely the epoch of best recall. Every random draw comes from
-``(key, epoch, step)``, so a run resumed from an epoch's checkpoint continues exactly as the
-uninterrupted run would have.
+real frames the epoch of least loss is rarely the epoch of best recall.
+
+Every random draw comes from ``(key, epoch, step)``, so a run resumed from an epoch's
+checkpoint continues exactly as the uninterrupted run would have.
 """
 
 from __future__ import annotations

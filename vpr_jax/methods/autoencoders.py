@@ -60,7 +60,7 @@ def describe_cae(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterat
     return describe_autoencoder("cae", pair, cfg, ctx)
 
 
-class Removal(NamedTuple):
+class ResidualInput(NamedTuple):
     """What a residual-input model takes out of every image: PCA's validation-selected count
     of the pair's leading components (``fae.input=residual``)."""
 
@@ -69,7 +69,7 @@ class Removal(NamedTuple):
     fixed: dict | None  # ae.with_removal's arrays (None when k = 0: the images themselves)
 
 
-def pca_removal(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Removal:
+def pca_removal(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> ResidualInput:
     """The count PCA change removal chooses on the validation places (the best validation
     recall@1 among ``removed_pcs``, the fewest on a tie), from the pair's PCA fit."""
     if ctx.pca_fit is None or ctx.validate is None:
@@ -84,7 +84,7 @@ def pca_removal(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Removal
     fixed = None
     if k:
         fixed = {"removal_mean": state.mean, "removal_basis": state.components[:k]}
-    return Removal(k, float(recalls[best]), fixed)
+    return ResidualInput(k, float(recalls[best]), fixed)
 
 
 def augment_variants(settings: TrainConfig) -> tuple[tuple[str, TrainConfig], ...]:
@@ -139,7 +139,7 @@ def _train(
     suffix: str,
     spec: ae.Spec,
     settings: TrainConfig,
-    removal: Removal | None,
+    removal: ResidualInput | None,
     pair: PairData,
     cfg: SweepConfig,
     ctx: MethodContext,
