@@ -4,9 +4,9 @@ PCA, matching and metrics."""
 
 from __future__ import annotations
 
-import hashlib
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -81,25 +81,29 @@ def test_route_is_frame_aligned_with_step():
     assert np.abs(stepped.images["summer"] - stepped.images["winter"]).mean() > 0.02
 
 
-# The route as of commit 0524d29: sha256 of the frames 0..15 and 3000 of traversal 0. A
-# change to these is a change of the built-in data: every number in the docs moves.
-RECORDED_ROUTE = {
-    (0, "spring"): "0f01828fa8526f06b21bf88e485fa5da55b97ca06fda4aab37658f0947c768ce",
-    (0, "summer"): "145bbb920b2d8a2a134028544b07888533c7acb281115f40ecbe3aff8bfbdd83",
-    (0, "fall"): "6e7810ba495913773fcf66667d96cd7f01ce317e0abc2498480609f46eef81ff",
-    (0, "winter"): "48c6182b21450f3d40c5078332e66960304d3602d892b8e6957fde65a300b51c",
-    (1, "spring"): "380e15432961a6436343bd3c0b1cfaf066e82d83f419fffe4a7f34e8a2d32813",
-    (1, "summer"): "a350ac0636b64199f760b69328f58bddbde4d9234361fe03564653f17c7aac4e",
-    (1, "fall"): "68b2388580409ab92c15c847340c2758aed0b6cf066bb65e824baaa4a706fa52",
-    (1, "winter"): "4f4e87ae63b3ca05c44bb1decc6da638e57e27c71486c97fab87b951b2b768f3",
-}
+# The route as recorded: the 8x8-pixel block means of frames 0..15 and 3000 of traversal 0,
+# per seed and season (tests/data/recorded_route.npz, written with ``_block_means``). A
+# change of the built-in data moves nearly every block, and every number in the docs with
+# it. Not a hash of the bits, as it was until 2026-12-03: numpy's float32 kernels round
+# differently across versions and CPUs (on a Zen 3 box with numpy 2.4.6 seed 1's fall
+# frames hashed differently from commit 0524d29's, the other seven to the bit), so a few
+# blocks may move by rounding.
+RECORDED_ROUTE = Path(__file__).parent / "data" / "recorded_route.npz"
+SEEDS_AND_SEASONS = [(seed, season) for seed in (0, 1) for season in SEASONS]
 
 
-@pytest.mark.parametrize(("seed", "season"), sorted(RECORDED_ROUTE))
-def test_frames_are_bit_identical_to_the_recorded_route(seed, season):
+def _block_means(frames: np.ndarray) -> np.ndarray:
+    n, h, w = frames.shape
+    return frames.reshape(n, h // 8, 8, w // 8, 8).mean(axis=(2, 4))
+
+
+@pytest.mark.parametrize(("seed", "season"), SEEDS_AND_SEASONS)
+def test_frames_are_the_recorded_route(seed, season):
     frames = render_season(np.r_[np.arange(16), 3000], season, seed=seed)
-    digest = hashlib.sha256(np.ascontiguousarray(frames).tobytes()).hexdigest()
-    assert digest == RECORDED_ROUTE[(seed, season)]
+    recorded = np.load(RECORDED_ROUTE)[f"{seed}-{season}"]
+    moved = np.abs(_block_means(frames) - recorded)
+    assert moved.shape == recorded.shape == (17, 4, 8)
+    assert np.mean(moved > 1e-5) <= 0.01 and moved.max() < 0.05, (moved.max(), moved.mean())
 
 
 def test_neighbouring_frames_overlap_distant_ones_do_not():
