@@ -250,7 +250,8 @@ def fit_ica(
     ``key`` draws the initial W (standard normal, as scikit-learn does); or pass ``w_init``.
     ``n_init > 1`` runs that many initialisations at once (vmapped over keys) and keeps the
     one with the largest negentropy. ``pca_state`` reuses a PCA fit of the same ``train``
-    (the sweep shares one per season pair); otherwise PCA is fitted here.
+    (the sweep shares one per season pair); otherwise PCA is fitted here, only as far as a
+    given ``n_components`` reaches.
     ``n_components="all"`` keeps every component the data allow after removing
     ``removed_pcs`` (the seed's "all ICs, no dimension reduction").
     """
@@ -259,7 +260,12 @@ def fit_ica(
     x = pca.flatten(jnp.asarray(train, jnp.float32))
     n = x.shape[0]
     if pca_state is None:
-        pca_state = pca.fit_pca(x, solver=pca_solver)
+        # A count of components needs only the leading removed_pcs + count of PCA (the
+        # subspace solver's partial fit); "all" needs every one.
+        limit = pca.rank_limit(n, x.shape[1])
+        wanted = None if n_components in (None, "all") else removed_pcs + int(n_components)
+        wanted = wanted if wanted is not None and 1 <= wanted <= limit else None
+        pca_state = pca.fit_pca(x, wanted, solver=pca_solver)
     c = resolve_n_components(n_components, removed_pcs, data_rank(pca_state, n))
     k_white = whitening_matrix(pca_state, n, removed_pcs, c)
     z = (x - pca_state.mean) @ k_white.T

@@ -10,11 +10,21 @@ Descriptors can be scored on several *suffixes* at once: with ``starts=(0, 5, 10
 for start s uses only features s, s+1, ... of each descriptor. On PCA coefficients this is
 change removal for every removed-PC count from one pass: the dot product over a suffix is a
 sum of the block products of the segments it covers, so all counts cost one full product.
+
+Each block's K best are taken in two levels, exact (``block_top_k``): the block's columns
+are dealt into W lanes, one fused pass takes every lane's maximum, the K lanes with the
+largest maxima hold the block's K best, and only their columns are ranked. On a CPU that is
+one read of the scores instead of ``lax.top_k``'s pass per row (docs/speed.md has the
+breakdown), and the scores are never scaled as a whole: the database norms are folded into
+the lane pass and only the candidates are scored in full.
 """
 
 from __future__ import annotations
 
 import functools
+import math
+import os
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -27,7 +37,38 @@ from vpr_jax import sharding
 from vpr_jax.sharding import AXIS
 
 _EPS = 1e-12
-SCORE_BUDGET = 4096 * 4096  # floats scored per matching step when blocks are automatic
+FALLBACK_CACHE_BYTES = 8 << 20  # where the last-level cache's size cannot be read
+MIN_QUERY_ROWS_PER_CORE = 64  # a query block gives every core's product tiles this many rows
+
+
+def last_level_cache_bytes() -> int:
+    """The largest CPU cache this process can read the size of (Linux sysfs), else
+    ``FALLBACK_CACHE_BYTES``."""
+    sizes = []
+    for path in Path("/sys/devices/system/cpu/cpu0/cache").glob("index*/size"):
+        text = path.read_text().strip() if path.is_file() else ""
+        unit = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(text[-1:], 1)
+        digits = text.rstrip("KMG")
+        if digits.isdigit():
+            sizes.append(int(digits) * unit)
+    return max(sizes, default=FALLBACK_CACHE_BYTES)
+
+
+def score_budget() -> int:
+    """Floats of one matching step's scores when blocks are automatic: a quarter of the
+    last-level cache, so a block's scores stay there between the product that writes them
+    and the ranking passes that read them (3,569 x 3,569 top-10 on a 2-core EPYC, 32 MiB L3:
+    query blocks of 256-512 rows ran 15-25% faster than one block of every query, whose
+    51 MB of scores are written to fresh memory on each call)."""
+    return last_level_cache_bytes() // 4 // 4
+
+
+def lane_width(block: int, k: int) -> int:
+    """W for ``block_top_k``: the power of two nearest below sqrt(block x k), which balances
+    the ranking of the W lane maxima against that of the K x block / W candidates; 0 when
+    the block is too small for two levels to pay (W <= K)."""
+    w = 1 << int(math.log2(math.sqrt(block * k))) if block * k >= 1 else 0
+    return w if w > k else 0
 
 
 def l2_normalize(x: Float[Array, "n d"], axis: int = -1) -> Float[Array, "n d"]:
@@ -43,8 +84,10 @@ def cosine_similarity(
     return l2_normalize(query_desc) @ l2_normalize(db_desc).T
 
 
-def _suffix_scores(query_desc, db_desc, starts):
-    """Yield (start index, cosine on features [start:]) for every start, last start first.
+def _suffix_dots(query_desc, db_desc, starts):
+    """Yield (start index, dot product on features [start:], 1 / query norms, 1 / database
+    norms) for every start, last start first; the cosine is ``dot * inv_q[:, None] *
+    inv_db[None, :]``.
 
     The dot product over a suffix is the sum of the segment products it covers, so walking
     the starts backwards adds one thin segment product at a time: every start together costs
@@ -59,7 +102,7 @@ def _suffix_scores(query_desc, db_desc, starts):
         db_sq = db_sq + jnp.sum(d * d, axis=1)
         inv_q = 1.0 / jnp.maximum(jnp.sqrt(q_sq), _EPS)
         inv_db = 1.0 / jnp.maximum(jnp.sqrt(db_sq), _EPS)
-        yield i, dot * inv_q[:, None] * inv_db[None, :]
+        yield i, dot, inv_q, inv_db
 
 
 def suffix_cosine(
@@ -70,8 +113,52 @@ def suffix_cosine(
     ``starts`` must be strictly increasing and each < d. Equivalent to
     ``stack([cosine_similarity(q[:, s:], db[:, s:]) for s in starts])``.
     """
-    scores = dict(_suffix_scores(query_desc, db_desc, starts))
+    scores = {
+        i: dot * inv_q[:, None] * inv_db[None, :]
+        for i, dot, inv_q, inv_db in _suffix_dots(query_desc, db_desc, starts)
+    }
     return jnp.stack([scores[i] for i in range(len(starts))])
+
+
+def block_top_k(
+    dot: Float[Array, "nq blk"],
+    inv_q: Float[Array, " nq"],
+    inv_db: Float[Array, " blk"],
+    valid,
+    k: int,
+) -> tuple[Float[Array, "nq k"], Int[Array, "nq k"]]:
+    """The K largest cosines ``dot * inv_q[:, None] * inv_db`` of every row and their
+    columns, best first; columns where ``valid`` is False never count. Ties keep the lower
+    column, as ``lax.top_k`` does, except a tie at the K-th value across lanes (where the
+    lane of the larger maximum wins).
+
+    Two levels when the block is large enough (``lane_width``): column c < W x (block // W)
+    goes to lane c mod W (the few columns past the last whole group are candidates as they
+    are), one pass takes each lane's maximum, and the K best of the row lie in the K lanes
+    with the largest maxima (a value outside them is beaten by K lane maxima, each a
+    different column), so only those K x block / W columns are gathered and ranked. The
+    lane pass leaves out ``inv_q``, which scales a row alike; the candidates are scored in
+    full, to the bit as the one-level path scores them.
+    """
+    nq, block = dot.shape
+    w = lane_width(block, k)
+    g = block // w if w else 0
+    if g * w < k:
+        return jax.lax.top_k(jnp.where(valid, dot * inv_q[:, None] * inv_db, -jnp.inf), k)
+    # Written in the (row, group, lane) layout so that the scaling fuses into the reduction:
+    # scaling first and reshaping after would write the scaled block out in full.
+    m = g * w  # the columns dealt into lanes; the last block % W are ranked on their own
+    main, inv_main = dot[:, :m].reshape(nq, g, w), inv_db[:m].reshape(g, w)
+    scaled = jnp.where(valid[:m].reshape(g, w), main * inv_main, -jnp.inf)
+    lanes = jnp.sort(jax.lax.top_k(scaled.max(axis=1), k)[1], axis=1)  # (nq, k), ascending
+    # Candidates in column order (group-major, lanes ascending, then the leftover columns),
+    # so the stable top_k below keeps the lower column of a tie.
+    cols = (jnp.arange(g, dtype=jnp.int32)[None, :, None] * w + lanes[:, None, :]).reshape(nq, -1)
+    rest = jnp.broadcast_to(jnp.arange(m, block, dtype=jnp.int32), (nq, block - m))
+    cols = jnp.concatenate([cols, rest], axis=1)
+    cand = jnp.take_along_axis(dot, cols, axis=1) * inv_q[:, None] * inv_db[cols]
+    best, pos = jax.lax.top_k(jnp.where(valid[cols], cand, -jnp.inf), k)
+    return best, jnp.take_along_axis(cols, pos, axis=1)
 
 
 @functools.partial(jax.jit, static_argnames=("k", "block_size", "starts"))
@@ -97,10 +184,10 @@ def _top_k_blocks(
         block, offset = block_and_offset
         valid = offset + jnp.arange(block_size) < n_db
         block_scores, block_idx = [None] * n_starts, [None] * n_starts
-        for i, scores in _suffix_scores(query_desc, block, starts):
+        for i, dot, inv_q, inv_db in _suffix_dots(query_desc, block, starts):
             # Top-K of the block for this start right away: the (nq, block) scores are
             # never stacked over starts, which keeps memory traffic to one pass per start.
-            block_scores[i], pos = jax.lax.top_k(jnp.where(valid, scores, -jnp.inf), k)
+            block_scores[i], pos = block_top_k(dot, inv_q, inv_db, valid, k)
             block_idx[i] = offset + pos.astype(jnp.int32)
         # Merge two K-lists. Earlier blocks come first and top_k is stable, so ties keep the
         # lowest database index, as argmax would.
@@ -167,8 +254,10 @@ def top_k_matches(
     Returns numpy (scores, indices), each (len(starts), n_queries, min(k, n_db)); indices
     point into ``db_desc``. Each step scores len(starts) x query_block_size x block_size
     floats, independent of n_db; by default query blocks shrink as starts grow so that a step
-    stays near SCORE_BUDGET floats (measured fastest on a 2-core CPU: smaller score blocks
-    stay in cache while every start makes its own pass over them).
+    stays near ``score_budget()`` floats (a quarter of the last-level cache), with at least
+    ``MIN_QUERY_ROWS_PER_CORE`` rows per core. Blocks only split the work: the database is
+    padded to whole blocks as before, never to the ranking's lanes, because a product's
+    rounding changes with its padded width and the scores would move by an ulp.
 
     With a ``mesh`` the database is split across its devices (``vpr_jax.sharding``): each
     scores its part in the same blocks, and the per-device K-lists are merged.
@@ -189,7 +278,8 @@ def top_k_matches(
     # split over many devices pads each device's block (padding scores -inf, never kept).
     block_size = max(min(block_size, -(-n_db // n_devices)), k)
     if query_block_size is None:
-        query_block_size = max(256, SCORE_BUDGET // (len(starts) * block_size))
+        floor = MIN_QUERY_ROWS_PER_CORE * (os.cpu_count() or 1)
+        query_block_size = max(floor, score_budget() // (len(starts) * block_size))
     db_blocks = sharding.pad_rows(db_desc, n_devices * block_size).reshape(-1, block_size, d)
     nq = query_desc.shape[0]
     query_block_size = min(query_block_size, nq)
