@@ -25,7 +25,8 @@ Rows (seed's sizes: 5,000 x 2,048 training images, 3,569 queries x 3,569 databas
 The paper protocol is ``python -m experiments.sweep preset=paper`` in a fresh process, into a
 temporary logdir and checkpoint folder (three pairs x raw, six PCA counts, six ICA counts,
 FAE, CAE; compilation and data generation included), with its peak RSS. ``--skip-protocol``,
-``--skip-full-route`` and ``--skip-scaling`` leave out the three longest rows.
+``--skip-full-route`` and ``--skip-scaling`` leave out the three longest rows;
+``--scaling-plot PATH`` draws the scaling exponents' log-log plot (docs/scaling_speed.png).
 Ours: warm medians of --repeats runs in this process; peers the same, each in a fresh
 process without OPENBLAS_CORETYPE / OPENBLAS_L2_SIZE (``peers.py``: their native kernel).
 """
@@ -48,6 +49,7 @@ from common import seed_route, sweep_in_fresh_process, timed
 from peers import FORCING, ours_report, run_peer
 from scaling import FULL_ROUTE
 from scaling import measure as measure_scaling
+from scaling import plot as plot_scaling
 
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import ica, pca
@@ -210,8 +212,10 @@ def full_route_row(table: Table) -> None:
     print(f"  preset=full took {wall:.0f} s")
 
 
-def scaling_rows(table: Table, repeats: int) -> None:
+def scaling_rows(table: Table, repeats: int, plot_path: Path | None) -> None:
     result = measure_scaling([1000, 4000, 16000, FULL_ROUTE], repeats)
+    if plot_path is not None:
+        plot_scaling(result, plot_path)
     fits = result["exponents"]
     table.add("matching time ~ n^x, x", fits["matching time"], 2.0, "expected", 1.1, "")
     table.add("matching memory ~ n^x, x", fits["matching memory"], 1.0, "expected", 1.1, "")
@@ -230,6 +234,9 @@ def main() -> None:
     )
     parser.add_argument(
         "--skip-scaling", action="store_true", help="leave out benchmarks/scaling.py's exponents"
+    )
+    parser.add_argument(
+        "--scaling-plot", type=Path, default=None, help="draw scaling.py's log-log plot here"
     )
     parser.add_argument(
         "--protocol-args",
@@ -254,7 +261,7 @@ def main() -> None:
     if not args.skip_full_route:
         full_route_row(table)
     if not args.skip_scaling:
-        scaling_rows(table, max(1, args.repeats // 2))
+        scaling_rows(table, max(1, args.repeats // 2), args.scaling_plot)
     print()
     table.print()
     print(f"\ntotal {time.perf_counter() - start:.0f} s")

@@ -53,4 +53,4 @@ def test_more_epochs_and_removed_pc_counts_compile_only_the_new_suffix_matchers(
     # same leading components: lda's 200 outnumber the counts), ICA's new counts, the
     # auto-encoders' extra epochs and all their blocks compile nothing.
     names = [c.split(" | ")[0] for c in compiled[2]]
-    assert names == ["jit(_top_k_query_blocks)"] * 4, compiled[2]
+    assert names == ["jit(_top_k_unpadded)"] * 4, compiled[2]
