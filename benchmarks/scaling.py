@@ -1,5 +1,7 @@
-"""Cost against work: time and peak memory of matching and of a raw + PCA sweep against the
-route's length, with the exponent of each fitted on a log-log scale.
+"""Cost against work: time and peak memory of matching and of a raw + PCA sweep by length.
+
+Each is measured against the route's length, and the exponent of each fitted on a log-log
+scale.
 
     python benchmarks/scaling.py [--frames 1000,4000,16000,35768] [--repeats 2]
                                  [--plot docs/scaling_speed.png]
