@@ -41,6 +41,7 @@ FALLBACK_CACHE_BYTES = 8 << 20  # where the last-level cache's size cannot be re
 MIN_QUERY_ROWS_PER_CORE = 64  # a query block gives every core's product tiles this many rows
 
 
+@functools.cache
 def last_level_cache_bytes() -> int:
     """The largest CPU cache this process can read the size of (Linux sysfs), else
     ``FALLBACK_CACHE_BYTES``."""
@@ -217,11 +218,19 @@ def _top_k_unpadded(query_desc, db_desc, k, block_size, query_block_size, starts
     the compiled program, where the padded copy is XLA's one buffer. Padding outside took
     three copies of the database (the padded array, its reshape, and jnp.asarray's own):
     0.95 GiB of working memory for the 35,768-frame route's 0.29 GiB of pixels."""
-    d = db_desc.shape[1]
-    db_blocks = sharding.pad_rows(db_desc, block_size).reshape(-1, block_size, d)
-    query_blocks = sharding.pad_rows(query_desc, query_block_size)
-    query_blocks = query_blocks.reshape(-1, query_block_size, d)
-    return _top_k_query_blocks(query_blocks, db_blocks, db_desc.shape[0], k, block_size, starts)
+    return _top_k_query_blocks(
+        _blocks(query_desc, query_block_size),
+        _blocks(db_desc, block_size),
+        db_desc.shape[0],
+        k,
+        block_size,
+        starts,
+    )
+
+
+def _blocks(x, size: int):
+    """Rows of ``x`` (numpy or JAX) zero-padded to whole blocks: (blocks, size, d)."""
+    return sharding.pad_rows(x, size).reshape(-1, size, x.shape[1])
 
 
 def _as_input(x, mesh: Mesh | None):
@@ -309,12 +318,10 @@ def top_k_matches(
             query_desc, db_desc, k, block_size, query_block_size, starts
         )
     else:
-        db_blocks = sharding.pad_rows(db_desc, n_devices * block_size)
-        db_blocks = db_blocks.reshape(-1, block_size, d)
-        query_blocks = sharding.pad_rows(query_desc, query_block_size)
-        query_blocks = query_blocks.reshape(-1, query_block_size, d)
+        # Every device gets whole blocks: the database is padded to a multiple of all of them.
+        db_blocks = _blocks(sharding.pad_rows(db_desc, n_devices * block_size), block_size)
         scores, indices = _sharded_top_k(mesh, k, block_size, starts)(
-            sharding.put(query_blocks, mesh, P()),
+            sharding.put(_blocks(query_desc, query_block_size), mesh, P()),
             sharding.put_rows(db_blocks, mesh),
             jnp.int32(n_db),
         )
