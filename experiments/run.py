@@ -28,6 +28,7 @@ from vpr_jax.encoders.train import check_batch_splits
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
+from vpr_jax.host_arrays import release_free_memory
 from vpr_jax.method_table import MethodInfo, describe_function
 from vpr_jax.methods import Descriptors, MethodContext, fit_pair_pca, uses_pca_fit
 from vpr_jax.outputs.logdir import config_yaml, fitted_root, identity, lock_logdir
@@ -217,7 +218,10 @@ def _run_pair(
                 saved.add(desc.fitted.folder)  # pca.output=pixels: one fit, a desc per count
                 _save_fitted(method, desc, ctx.checkpoint_dir, cfg, pair)
             yield from _save_descriptors(out, cfg, data, desc, todo, mesh)
-
+            # The cells are saved: drop the descriptors before the generator fits and
+            # encodes the next (a 35,768-frame database's are 0.3 GiB).
+            del desc
+            release_free_memory()
 
 def _save_fitted(
     method: MethodInfo, desc: Descriptors, folder: Path, cfg: SweepConfig, pair: str

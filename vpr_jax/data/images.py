@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vpr_jax import host_arrays
 from vpr_jax.data.image_header import image_size
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Log, track
@@ -63,7 +64,7 @@ def read_images(
     """(N, 32, 64) float32 in [0, 1] and how many of the files were colour. Each file's
     size is read from its header first (``image_header``): an image over ``max_pixels``
     is refused before it is decoded."""
-    out = np.empty((len(paths), _H, _W), dtype=np.float32)
+    out = host_arrays.empty((len(paths), _H, _W))  # JAX reads it in place
     colour = 0
     for i, path in enumerate(track(paths, f"reading {season}", total=len(paths))):
         try:
@@ -124,11 +125,12 @@ def _gray(img: np.ndarray, path: Path) -> tuple[np.ndarray, bool]:
 
 def to_unit_float(img: np.ndarray) -> np.ndarray:
     """uint8 / uint16 / float image -> float32 in [0, 1]."""
+    out = host_arrays.empty(img.shape)  # JAX reads it in place
     if img.dtype == np.uint8:
-        return img.astype(np.float32) / np.float32(255)
+        return np.divide(img, np.float32(255), out=out, dtype=np.float32)
     if img.dtype == np.uint16:
-        return img.astype(np.float32) / np.float32(65535)
-    return np.clip(img.astype(np.float32), 0.0, 1.0)
+        return np.divide(img, np.float32(65535), out=out, dtype=np.float32)
+    return np.clip(img, 0.0, 1.0, out=out, dtype=np.float32)
 
 
 def note_colour(colour: dict[str, int], log: Log) -> None:

@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from vpr_jax.config import SweepConfig
+from vpr_jax.host_arrays import stack_rows, take
 from vpr_jax.data.benchmark import Benchmark
 from vpr_jax.data.ground_truth import GroundTruth, Tolerance
 from vpr_jax.data.route import Route
@@ -82,19 +83,20 @@ def pair_data(
     season (training places included), not only its test places."""
     images = route.images
     everything = database == "all"  # the season's own array: no copy of the whole route
+    # Every array gathered straight into aligned memory, which XLA reads in place.
     db_ids = route.frame_ids if everything else route.frame_ids[split.test]
     query_ids, val_ids = route.frame_ids[split.test], route.frame_ids[split.val]
     return PairData(
         db_season=db,
         query_season=query,
-        train=np.concatenate([images[db][split.train], images[query][split.train]]),
-        db=images[db] if everything else images[db][split.test],
-        query=images[query][split.test],
+        train=stack_rows([(images[db], split.train), (images[query], split.train)]),
+        db=images[db] if everything else take(images[db], split.test),
+        query=take(images[query], split.test),
         db_ids=db_ids,
         query_ids=query_ids,
         truth=Tolerance.of(query_ids, db_ids, tolerance),
-        val_db=images[db][split.val],
-        val_query=images[query][split.val],
+        val_db=take(images[db], split.val),
+        val_query=take(images[query], split.val),
         val_db_ids=val_ids,
         val_query_ids=val_ids,
         val_truth=Tolerance.of(val_ids, val_ids, tolerance),
@@ -122,14 +124,14 @@ def benchmark_pair(
         return PairData(
             db_season=db,
             query_season=query,
-            train=np.concatenate([route.images[a][split.train], route.images[b][split.train]]),
+            train=stack_rows([(route.images[a], split.train), (route.images[b], split.train)]),
             db=bench.db,
             query=bench.query,
             db_ids=bench.db_ids,
             query_ids=bench.query_ids,
             truth=bench.truth,
-            val_db=route.images[a][split.val],
-            val_query=route.images[b][split.val],
+            val_db=take(route.images[a], split.val),
+            val_query=take(route.images[b], split.val),
             val_db_ids=val_ids,
             val_query_ids=val_ids,
             val_truth=Tolerance.of(val_ids, val_ids, cfg.tolerance),
@@ -148,12 +150,12 @@ def benchmark_pair(
         query_season=query,
         train=bench.db,
         db=bench.db,
-        query=bench.query[test],
+        query=take(bench.query, test),
         db_ids=bench.db_ids,
         query_ids=bench.query_ids[test],
         truth=bench.truth.take(test),
         val_db=bench.db,
-        val_query=bench.query[val],
+        val_query=take(bench.query, val),
         val_db_ids=bench.db_ids,
         val_query_ids=bench.query_ids[val],
         val_truth=bench.truth.take(val),

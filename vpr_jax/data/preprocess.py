@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vpr_jax import host_arrays
 from vpr_jax.data.benchmark import Benchmark
 from vpr_jax.data.route import Route
 from vpr_jax.progress import Log
@@ -48,7 +49,7 @@ def patch_zscores(images: np.ndarray, size: int) -> np.ndarray:
 
 def patch_normalize(images: np.ndarray, size: int = 8, rounded: bool = False) -> np.ndarray:
     """Patch-normalised images as float32 in [0, 1] (see the module docstring)."""
-    out = np.empty(np.shape(images), np.float32)
+    out = host_arrays.empty(np.shape(images))  # JAX reads it in place
     for i in range(0, len(out), _BLOCK):
         z = patch_zscores(images[i : i + _BLOCK], size)
         if rounded:

@@ -6,6 +6,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from vpr_jax import host_arrays
 from vpr_jax.shapes import IMAGE_SHAPE
 
 __all__ = ["IMAGE_SHAPE", "SEASON_ORDER", "Route"]
@@ -39,7 +40,8 @@ class Route(NamedTuple):
     def take(self, rows: np.ndarray) -> Route:
         """The frames at ``rows`` (indices or a mask) of every season."""
         files = None if self.files is None else {s: f[rows] for s, f in self.files.items()}
-        return Route(self.frame_ids[rows], {s: im[rows] for s, im in self.images.items()}, files)
+        images = {s: host_arrays.take(im, rows) for s, im in self.images.items()}
+        return Route(self.frame_ids[rows], images, files)
 
     @property
     def seasons(self) -> tuple[str, ...]:

@@ -257,7 +257,7 @@ def fit_ica(
     """
     _check_settings(fun, alpha, max_iter, tol, n_init, key, w_init)
 
-    x = pca.flatten(jnp.asarray(train, jnp.float32))
+    x = pca.device_rows(train)
     n = x.shape[0]
     if pca_state is None:
         # A count of components needs only the leading removed_pcs + count of PCA (the

@@ -34,7 +34,7 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
 
-from vpr_jax import sharding
+from vpr_jax import host_arrays, sharding
 from vpr_jax.sharding import AXIS
 
 Solver = Literal["auto", "covariance", "gram", "subspace"]
@@ -50,6 +50,16 @@ class PCAState(NamedTuple):
 
 def flatten(images: Float[Array, "n ..."]) -> Float[Array, "n d"]:
     return jnp.reshape(images, (images.shape[0], -1))
+
+
+def device_rows(images) -> Float[Array, "n d"]:
+    """(n, D) float32 rows of ``images`` on the device. A host array is flattened on the
+    host and put in place (an aligned one is not copied: ``vpr_jax.host_arrays``); an eager
+    ``jnp.reshape`` or ``jnp.asarray`` would copy the whole training set."""
+    if isinstance(images, jax.Array):
+        return flatten(images.astype(jnp.float32))
+    x = host_arrays.aligned(images)
+    return jax.device_put(x.reshape(len(x), -1))
 
 
 def rank_limit(n_samples: int, n_features: int) -> int:
@@ -240,8 +250,10 @@ def fit_pca(
     run on one device (the subspace solver's products are a few passes over the images).
     ``seed`` draws the subspace solver's starting directions.
     """
-    xp = np if mesh is not None else jnp  # host rows for a mesh, else wherever they are
-    x = xp.reshape(xp.asarray(train, np.float32), (len(train), -1))
+    if mesh is None:
+        x = device_rows(train)
+    else:  # host rows, split across the mesh below
+        x = np.reshape(np.asarray(train, np.float32), (len(train), -1))
     n, d = x.shape
     limit = rank_limit(n, d)
     if limit < 1:
@@ -254,7 +266,7 @@ def fit_pca(
         return _fit_gram(x, n_components)
     if chosen == "subspace":
         return _fit_subspace(
-            jnp.asarray(x),
+            jnp.asarray(x, jnp.float32),
             jax.random.key(seed),
             n_components,
             SUBSPACE_POWER_ITERATIONS,

@@ -79,13 +79,28 @@ def weighted_auc_pr(
     over recall from the start point (0, 1)); counts of all ones give ``metrics``' value.
 
     Thresholds are every distinct score; a query of count 0 adds a point equal to the one
-    before it, which adds no area, so the curve of a resample needs no compaction.
+    before it, which adds no area, so the curve of a resample needs no compaction. Resamples
+    are scored ``RESAMPLE_CHUNK`` at a time: each is its own row, and all at once took a
+    dozen (resamples, queries) float64 arrays (0.15 GiB at 3,450 queries).
     """
     order = np.argsort(-np.asarray(scores), kind="stable")
     s = np.asarray(scores)[order]
     c = np.asarray(correct, np.float64)[order]
     m = np.asarray(has_match, np.float64)[order]
-    w = counts[:, order].astype(np.float64)
+    return np.concatenate(
+        [
+            _auc_pr_of_resamples(s, c, m, counts[i : i + RESAMPLE_CHUNK, order], pr_convention)
+            for i in range(0, len(counts), RESAMPLE_CHUNK)
+        ]
+    )
+
+
+RESAMPLE_CHUNK = 128
+
+
+def _auc_pr_of_resamples(s, c, m, counts, pr_convention: str) -> np.ndarray:
+    """``weighted_auc_pr`` of resamples ``counts`` (rows) over queries sorted by score."""
+    w = counts.astype(np.float64)
     last = np.flatnonzero(np.append(s[1:] != s[:-1], True))  # ties enter together
     accepted = np.cumsum(w, axis=1)[:, last]
     tp = np.cumsum(w * c, axis=1)[:, last]

@@ -75,7 +75,7 @@ _centred = jax.jit(encode_centred)  # the saved encoder's own; compiled once per
 
 def describe_raw(pair: PairData, cfg: SweepConfig, ctx: MethodContext) -> Iterator[Descriptors]:
     """Raw pixels, centred with the training mean; cosine does the L2 normalisation."""
-    mean, fit_s = timed(lambda x: jax.numpy.mean(pca.flatten(x), axis=0), pair.train)
+    mean, fit_s = timed(lambda x: jax.numpy.mean(pca.device_rows(x), axis=0), pair.train)
     fitted = Fitted(folder="raw", encode=f"{SAVED}:encode_centred", state={"mean": mean})
     yield describe(
         "raw", lambda x: _centred(fitted.state, x, 0), pair, fit_seconds=fit_s, fitted=fitted

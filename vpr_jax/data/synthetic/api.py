@@ -7,6 +7,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from vpr_jax import host_arrays
 from vpr_jax.data.route import Route
 from vpr_jax.data.synthetic.camera import _H, _W
 from vpr_jax.data.synthetic.lighting import _Conditions
@@ -58,7 +59,7 @@ def render_season(
     ids = ids.astype(np.int64)
     if ids.size and ids.min() < 0:
         raise UserError("frame_ids must be >= 0: pass place indices along the route")
-    out = np.empty((len(ids), _H, _W), np.float32)
+    out = host_arrays.empty((len(ids), _H, _W))  # JAX reads it in place
     if not len(ids):
         return out
     world = _world(seed)
