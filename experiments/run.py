@@ -223,6 +223,7 @@ def _run_pair(
             del desc
             release_free_memory()
 
+
 def _save_fitted(
     method: MethodInfo, desc: Descriptors, folder: Path, cfg: SweepConfig, pair: str
 ) -> None:

@@ -9,11 +9,11 @@ from typing import NamedTuple
 import numpy as np
 
 from vpr_jax.config import SweepConfig
-from vpr_jax.host_arrays import stack_rows, take
 from vpr_jax.data.benchmark import Benchmark
 from vpr_jax.data.ground_truth import GroundTruth, Tolerance
 from vpr_jax.data.route import Route
 from vpr_jax.data.splits import Split
+from vpr_jax.host_arrays import stack_rows, take
 
 
 class Names(NamedTuple):
