@@ -23,6 +23,8 @@ from jax.experimental import multihost_utils
 from jax.sharding import AxisType, Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from vpr_jax import host_arrays
+
 AXIS = "data"
 
 
@@ -74,6 +76,16 @@ def put_rows(x: np.ndarray, mesh: Mesh) -> jax.Array:
 def replicate(tree, mesh: Mesh):
     """Every leaf of a pytree copied to every device of the mesh."""
     return jax.tree.map(lambda leaf: put(np.asarray(leaf), mesh, P()), tree)
+
+
+def on_device(x) -> jax.Array:
+    """float32 ``x`` on the default device: a JAX array as it is; a host array by
+    ``device_put``, which on a CPU reads a 64-byte-aligned array in place
+    (``vpr_jax.host_arrays``; any other is copied once, as ``jnp.asarray`` copies even an
+    aligned one)."""
+    if isinstance(x, jax.Array):
+        return x.astype(jnp.float32)
+    return jax.device_put(host_arrays.aligned(x))
 
 
 def to_host(x) -> np.ndarray:

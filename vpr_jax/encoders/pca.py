@@ -34,7 +34,7 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
 
-from vpr_jax import host_arrays, sharding
+from vpr_jax import sharding
 from vpr_jax.sharding import AXIS
 
 Solver = Literal["auto", "covariance", "gram", "subspace"]
@@ -54,12 +54,11 @@ def flatten(images: Float[Array, "n ..."]) -> Float[Array, "n d"]:
 
 def device_rows(images) -> Float[Array, "n d"]:
     """(n, D) float32 rows of ``images`` on the device. A host array is flattened on the
-    host and put in place (an aligned one is not copied: ``vpr_jax.host_arrays``); an eager
-    ``jnp.reshape`` or ``jnp.asarray`` would copy the whole training set."""
+    host (a view) and put in place (``sharding.on_device``); an eager ``jnp.reshape`` or
+    ``jnp.asarray`` would copy the whole training set."""
     if isinstance(images, jax.Array):
-        return flatten(images.astype(jnp.float32))
-    x = host_arrays.aligned(images)
-    return jax.device_put(x.reshape(len(x), -1))
+        return flatten(sharding.on_device(images))
+    return sharding.on_device(np.reshape(images, (len(images), -1)))
 
 
 def rank_limit(n_samples: int, n_features: int) -> int:

@@ -246,14 +246,9 @@ def _blocks(x, size: int):
 
 
 def _as_input(x, mesh: Mesh | None):
-    """float32 descriptors where the matcher reads them: host numpy for a mesh, else a
-    device array (a host array by ``device_put``, which on a CPU shares a 64-byte-aligned
-    float32 array instead of copying it; ``jnp.asarray`` always copied)."""
-    if mesh is not None:
-        return np.asarray(x, np.float32)
-    if isinstance(x, jax.Array):
-        return x.astype(jnp.float32)
-    return jax.device_put(np.asarray(x, np.float32))
+    """float32 descriptors where the matcher reads them: host numpy for a mesh (``put``
+    hands each device its part), else on the device, in place where it can."""
+    return np.asarray(x, np.float32) if mesh is not None else sharding.on_device(x)
 
 
 def _merge_top_k(scores, indices, k: int):
@@ -301,8 +296,9 @@ def top_k_matches(
     floats, independent of n_db; by default query blocks shrink as starts grow so that a step
     stays near ``score_budget()`` floats (a quarter of the last-level cache), with at least
     ``MIN_QUERY_ROWS_PER_CORE`` rows per core. Blocks only split the work: the database is
-    padded to whole blocks as before, never to the ranking's lanes, because a product's
-    rounding changes with its padded width and the scores would move by an ulp.
+    read in whole blocks in place and its last partial block padded to a whole one, never
+    to the ranking's lanes, because a product's rounding changes with its padded width and
+    the scores would move by an ulp.
 
     With a ``mesh`` the database is split across its devices (``vpr_jax.sharding``): each
     scores its part in the same blocks, and the per-device K-lists are merged.

@@ -212,16 +212,13 @@ def degenerate_rows(desc: Float[Array, "n d"]) -> tuple[int, bool]:
     row's distance from the first nonzero one), so nothing the size of the descriptors is
     allocated: one program over a 35,768-frame database took 0.26 GiB on its first run.
     """
-    blocks = [desc[s : s + ENCODE_BLOCK_ROWS] for s in range(0, len(desc), ENCODE_BLOCK_ROWS)]
-    norms = np.concatenate([np.asarray(_row_norms(b)) for b in blocks] or [np.zeros(0)])
+    rows = [slice(s, s + ENCODE_BLOCK_ROWS) for s in range(0, len(desc), ENCODE_BLOCK_ROWS)]
+    norms = np.concatenate([np.asarray(_row_norms(desc[r])) for r in rows] or [np.zeros(0)])
     zero = norms <= max(1e-6 * norms.max(initial=0.0), _EPS)
     inv = np.where(zero, 0.0, 1.0 / np.maximum(norms, _EPS)).astype(np.float32)
     if zero.all():
         return int(zero.sum()), False
     i = int(np.argmin(zero))  # the first nonzero row
     first = np.asarray(desc[i], np.float32) * inv[i]
-    gap = max(
-        float(_largest_gap(b, inv[s : s + len(b)], first))
-        for s, b in zip(range(0, len(desc), ENCODE_BLOCK_ROWS), blocks, strict=True)
-    )
+    gap = max(float(_largest_gap(desc[r], inv[r], first)) for r in rows)
     return int(zero.sum()), gap <= 1e-3 and int((~zero).sum()) > 1
