@@ -28,8 +28,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from vpr_jax.method_table import NAMES, SWEEPS_REMOVED_PCS  # noqa: E402
-from vpr_jax.outputs.results import read_results, selected_rows  # noqa: E402
+from vpr_jax.method_table import NAMES  # noqa: E402
+from vpr_jax.outputs.results import read_results, selected_rows, sweeps_removed_pcs  # noqa: E402
 
 ORDER = NAMES  # the method table's order; users' methods after it
 
@@ -75,7 +75,7 @@ def table(rows) -> str:
         sel = chosen[(method, objective, 1)]
         best = max(single, key=lambda r: (r.recall_at_1, -r.removed_pcs))
         seq = chosen.get((method, objective, 10))
-        axis = method in SWEEPS_REMOVED_PCS
+        axis = sweeps_removed_pcs(sel)
         k = str(sel.removed_pcs) if axis else ""
         ds10 = f"{seq.recall_at_1:.3f}" + (f" (k={seq.removed_pcs})" if axis else "") if seq else ""
         optimistic = f"{best.removed_pcs}: {best.recall_at_1:.3f}" if axis else ""

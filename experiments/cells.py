@@ -1,11 +1,12 @@
 """One sweep cell, in one direction: a method's descriptors -> matches -> metrics -> its
 TensorBoard run and results.csv row.
 
-A cell is (season pair, method, objective, removed-PC count, sequence length ds); the
-objective is the auto-encoders' (empty for the other methods). ``match`` turns
-descriptors into each query's top-K database matches: for ds = 1 one blockwise cosine pass
-scores every removed-PC count's feature suffix at once; for ds > 1 sequence matching runs on
-one count's descriptors. ``save_cell`` evaluates the matches and writes the cell.
+A cell is (season pair, method, objective, setting, removed-PC count, sequence length ds,
+seed); the objective is the auto-encoders' (empty for the other methods), the setting the
+method's swept settings. ``match`` turns descriptors into each query's top-K database
+matches: for ds = 1 one blockwise cosine pass scores every cell's feature suffix at once (a
+removed-PC count's); for ds > 1 sequence matching runs on one suffix. ``save_cell``
+evaluates the matches and writes the cell.
 """
 
 from __future__ import annotations
@@ -26,9 +27,8 @@ from vpr_jax.evaluation.matching import top_k_matches
 from vpr_jax.evaluation.metrics import Evaluation, evaluate_matches
 from vpr_jax.evaluation.sequence import sequence_top_k_cosine, velocities
 from vpr_jax.files import replace_folder
-from vpr_jax.method_table import SWEEPS_REMOVED_PCS
-from vpr_jax.methods import Descriptors, model_name
-from vpr_jax.outputs.results import ResultRow, append_results
+from vpr_jax.methods.descriptors import Descriptors, Part
+from vpr_jax.outputs.results import ResultRow, append_results, sweeps_removed_pcs
 from vpr_jax.outputs.tb import match_examples, write_cell_run
 from vpr_jax.progress import Log
 
@@ -48,37 +48,31 @@ def match(
     desc: Descriptors,
     pair: PairData,
     ds: int,
-    counts: tuple[int, ...],
+    starts: tuple[int, ...],
     cfg: SweepConfig,
     mesh: Mesh | None,
     part: str = "test",
     k: int = TOP_K,
 ) -> list[TopK]:
-    """The top-``k`` matches of every query for each removed-PC count in ``counts`` (counts
-    of ``desc``), in that order; ``part="val"``: of the validation queries against the
-    validation database.
+    """The top-``k`` matches of every query for each feature-suffix start in ``starts`` (a
+    cell's: ``desc.starts``), in that order; ``part="val"``: of the validation queries
+    against the validation database.
 
-    ds = 1: plain cosine, one blockwise pass for all counts (suffix starts), split over the
-    mesh. ds > 1: sequence matching (``vpr_jax.evaluation.sequence``) of ds frames on each count's
-    descriptor suffix, on one device.
+    ds = 1: plain cosine, one blockwise pass for all starts, split over the mesh. ds > 1:
+    sequence matching (``vpr_jax.evaluation.sequence``) of ds frames on each suffix, on one
+    device.
     """
-    start_of = dict(zip(desc.removed_pcs, desc.starts, strict=True))
     query, db, query_ids, db_ids = _part(desc, pair, part)
     if ds == 1:
         scores, idx = top_k_matches(
-            query,
-            db,
-            k,
-            starts=tuple(start_of[count] for count in counts),
-            block_size=cfg.matching.block_size,
-            mesh=mesh,
+            query, db, k, starts=starts, block_size=cfg.matching.block_size, mesh=mesh
         )
         return list(zip(scores, idx, strict=True))
     seq = cfg.sequence
     return [
         sequence_top_k_cosine(
-            query[:, start_of[count] :],
-            db[:, start_of[count] :],
+            query[:, start:],
+            db[:, start:],
             ds,
             query_ids=query_ids,
             db_ids=db_ids,
@@ -87,16 +81,15 @@ def match(
             uniqueness_window=seq.uniqueness_window,
             k=k,
         )
-        for count in counts
+        for start in starts
     ]
 
 
-def run_name(pair: str, method: str, k: int | None, ds: int = 1, objective: str = "") -> str:
-    """``summer-fall/pca_k005``, ``summer-fall/fae``, ``summer-fall/fae_cross_season``;
-    sequence cells add ``_ds10``; ``k=None`` leaves the count out (``summer-fall/pca``)."""
-    model = model_name(method, objective)
-    sweeps = method in SWEEPS_REMOVED_PCS and k is not None
-    name = f"{pair}/{model}_k{k:03d}" if sweeps else f"{pair}/{model}"
+def run_name(pair: str, run: str, ds: int = 1) -> str:
+    """``summer-fall/pca_k005``, ``summer-fall/fae_cross_season``,
+    ``summer-fall/ica_n_components=64_k005``; sequence cells add ``_ds10``. ``run``: the
+    cell's ``Part.run``."""
+    name = f"{pair}/{run}"
     return name if ds == 1 else f"{name}_ds{ds:02d}"
 
 
@@ -106,7 +99,7 @@ def _write_run(
     cfg: SweepConfig,
     pair: PairData,
     desc: Descriptors,
-    k: int,
+    cell: int,
     ds: int,
     top: TopK,
     ev: Evaluation,
@@ -129,15 +122,17 @@ def _write_run(
             "season_pair": pair.name,
             "method": desc.method,
             "objective": desc.objective,
-            "removed_pcs": float(k),
+            "setting": desc.parts[cell].setting,
+            "removed_pcs": float(desc.parts[cell].removed_pcs),
             "ds": float(ds),
+            "seed": float(desc.seed),
         },
         trial_id=name,
         n_thresholds=cfg.tb.pr_thresholds,
         examples=match_examples(
             pair.query, pair.db, pair.truth, top[1][:, 0], cfg.tb.n_match_examples
         ),
-        basis_images=desc.basis[desc.removed_pcs.index(k)],
+        basis_images=desc.basis[cell],
         basis_tag=f"basis/{desc.basis_name}",
     )
     np.savez(
@@ -183,16 +178,17 @@ def save_cell(
     cfg: SweepConfig,
     pair: PairData,
     desc: Descriptors,
-    k: int,
+    cell: int,
     ds: int,
     top: TopK,
     val_top: TopK | None,
 ) -> ResultRow:
-    """Evaluate one cell's matches (``top``: the test queries', ``val_top``: the validation
-    queries', None when the descriptors have none: NaN validation scores), write its
-    TensorBoard run, then its results.csv row (the row last: a run without a row is redone
-    by a resumed sweep). Returns the row."""
-    name = run_name(pair.name, desc.method, k, ds, desc.objective)
+    """Evaluate the matches of ``desc``'s ``cell``-th part (``top``: the test queries',
+    ``val_top``: the validation queries', None when the descriptors have none: NaN
+    validation scores), write its TensorBoard run, then its results.csv row (the row last:
+    a run without a row is redone by a resumed sweep). Returns the row."""
+    part: Part = desc.parts[cell]
+    name = run_name(pair.name, part.run, ds)
     shutil.rmtree(logdir / name, ignore_errors=True)  # left by a crash before its row
     ev = evaluate_matches(*top, pair.truth, pr_convention=cfg.pr_convention)
     val_recall_at_1, val_auc_pr = _validation_scores(cfg, pair, val_top)
@@ -205,14 +201,15 @@ def save_cell(
         seed=cfg.seed,
         pr_convention=cfg.pr_convention,
     )
-    _write_run(logdir, name, cfg, pair, desc, k, ds, top, ev)
+    _write_run(logdir, name, cfg, pair, desc, cell, ds, top, ev)
     row = ResultRow(
         season_pair=pair.name,
         db_season=pair.db_season,
         query_season=pair.query_season,
         method=desc.method,
         objective=desc.objective,
-        removed_pcs=k,
+        setting=part.setting,
+        removed_pcs=part.removed_pcs,
         ds=ds,
         n_train=len(pair.train),
         n_test=len(pair.query),
@@ -231,17 +228,19 @@ def save_cell(
         n_iter=desc.n_iter,
         converged=int(desc.converged),
         stopped_early=int(desc.stopped_early),
-        seed=cfg.seed,
+        seed=desc.seed,
         run=name,
     )
     append_results(logdir / "results.csv", [row])
     return row
 
 
-def log_cell(log: Log, counter: str, row: ResultRow, warning: str | None) -> None:
+def log_cell(log: Log, counter: str, row: ResultRow, warning: str | None, cfg_seed: int) -> None:
     """One plain line per finished cell (and its descriptors' warning, if any)."""
     k_text = f" {row.objective}" if row.objective else ""
-    k_text += f" k={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else ""
+    k_text += f" {row.setting}" if row.setting else ""
+    k_text += f" k={row.removed_pcs}" if sweeps_removed_pcs(row) else ""
+    k_text += f" seed={row.seed}" if row.seed != cfg_seed else ""
     k_text += f" ds={row.ds}" if row.ds != 1 else ""
     iters = f"  {row.n_iter} iterations" if row.n_iter else ""
     cost = f"fit {row.fit_seconds:.2f} s{iters}  {row.encode_ms_per_image:.4f} ms/img"

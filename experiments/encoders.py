@@ -2,9 +2,10 @@
 
     python -m experiments.encoders LOGDIR
 
-Prints pair, method (and objective), the removed-PC count chosen on the validation places,
-its validation recall@1 and the folder; ``vpr_jax.load_encoder(folder)`` gives the encoder
-back as ``(encode_fn, params)``. Reads ``LOGDIR/encoders.csv``, which the sweep writes with
+Prints pair, method (and objective), its setting (swept settings, the removed-PC count
+chosen on the validation places, the seed), its validation recall@1, ``*`` on the setting
+the validation places chose, and the folder; ``vpr_jax.load_encoder(folder)`` gives the
+encoder back as ``(encode_fn, params)``. Reads ``LOGDIR/encoders.csv``, which the sweep writes with
 its report. Bad input: one line on stderr, exit code 2.
 """
 
@@ -36,13 +37,14 @@ def read_listing(logdir: Path) -> list[dict]:
 
 
 def format_listing(rows: list[dict]) -> str:
-    header = ("pair", "method", "setting", "val recall@1", "folder")
+    header = ("pair", "method", "setting", "val recall@1", "chosen", "folder")
     lines = [
         (
             r["pair"],
             r["method"] + (f" {r['objective']}" if r["objective"] else ""),
-            f"k={r['removed_pcs']}" if r["removed_pcs"] not in ("", "0") else "",
+            _setting(r),
             f"{float(r['val_recall_at_1']):.3f}",
+            "*" if r["selected"] == "1" else "",
             r["folder"] + ("" if Path(r["folder"]).is_dir() else "  (missing)"),
         )
         for r in rows
@@ -52,6 +54,15 @@ def format_listing(rows: list[dict]) -> str:
         "  ".join(str(x).ljust(w) for x, w in zip(line, widths, strict=True)).rstrip()
         for line in (header, *lines)
     )
+
+
+def _setting(row: dict) -> str:
+    parts = [
+        row["setting"],
+        f"k={row['removed_pcs']}" if row["removed_pcs"] not in ("", "0") else "",
+        f"seed {row['seed']}" if row["seed"] not in ("", "0") else "",
+    ]
+    return " ".join(p for p in parts if p)
 
 
 def main(argv: list[str] | None = None) -> int:

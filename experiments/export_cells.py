@@ -21,14 +21,13 @@ from vpr_jax.data.pair import PairData
 from vpr_jax.encoders.saved import FIT_JSON, stored_encoder, suite_version
 from vpr_jax.errors import UserError
 from vpr_jax.files import replace_folder
-from vpr_jax.method_table import SWEEPS_REMOVED_PCS
-from vpr_jax.methods import Descriptors
+from vpr_jax.methods.descriptors import Descriptors, Part
 from vpr_jax.outputs import export as files
 from vpr_jax.outputs.logdir import config_yaml, saved_config
-from vpr_jax.outputs.results import ResultRow, read_results, selected_rows
+from vpr_jax.outputs.results import ResultRow, read_results, selected_rows, sweeps_removed_pcs
 from vpr_jax.progress import Log
 
-SavedEncoders = dict[tuple[str, str, str], list[tuple[list[int], Path]]]
+SavedEncoders = dict[str, tuple[Path, dict]]  # a cell's run (less ds) -> its fit's folder, served
 
 
 def sweep_config(logdir: Path) -> SweepConfig:
@@ -38,23 +37,33 @@ def sweep_config(logdir: Path) -> SweepConfig:
 
 
 def saved_encoders(logdir: Path) -> SavedEncoders:
-    """(pair, method, objective) -> [(counts it serves, folder)], from the sweep's listing."""
+    """Each cell's run (less its ds) -> the folder of the fit that serves it and what it
+    serves it with, from the sweep's listing."""
     out: SavedEncoders = {}
     for entry in read_listing(logdir) if (logdir / "encoders.csv").exists() else []:
         folder = Path(entry["folder"])
         if not (folder / FIT_JSON).is_file():
             continue  # moved or deleted since: its cells export without an encoder
         fit = json.loads((folder / FIT_JSON).read_text())
-        key = (entry["pair"], fit["name"], fit["objective"])
-        out.setdefault(key, []).append((fit["counts"], folder))
+        for cell in fit.get("cells", []):
+            out[run_name(entry["pair"], cell["run"])] = (folder, cell["served"])
     return out
+
+
+def _single_image_run(row: ResultRow) -> str:
+    """The row's run without its sequence length: the run of its single-image cell."""
+    ds = f"_ds{row.ds:02d}"
+    return row.run.removesuffix(ds) if row.ds != 1 else row.run
 
 
 def folder_name(row: ResultRow, all_settings: bool) -> str:
     """The cell's run name less its pair; less the removed-PC count too unless
     ``all_settings`` (``pca``, ``pca_k005``, ``fae_cross_season``, ``lda_ds10``)."""
-    k = row.removed_pcs if all_settings else None
-    return run_name(row.season_pair, row.method, k, row.ds, row.objective).split("/", 1)[1]
+    name = row.run.split("/", 1)[1]
+    if all_settings or not sweeps_removed_pcs(row):
+        return name
+    ds = f"_ds{row.ds:02d}" if row.ds != 1 else ""
+    return name.removesuffix(f"_k{row.removed_pcs:03d}{ds}") + ds
 
 
 def export(logdir: Path, out: Path, *, top_k: int, all_settings: bool, log: Log) -> Path:
@@ -73,34 +82,28 @@ def export(logdir: Path, out: Path, *, top_k: int, all_settings: bool, log: Log)
         pair = load_pair(plan, db, query)
         for row in sorted(mine, key=lambda r: r.run):
             name = folder_name(row, all_settings)
-            recall = export_cell(plan, pair, row, _saved_folder(encoders, row), out, name, top_k)
+            saved = encoders.get(_single_image_run(row))
+            recall = export_cell(plan, pair, row, saved, out, name, top_k)
             log(f"{pair.name}/{name}: recall@1 {recall:.3f} (sweep: {row.recall_at_1:.3f})")
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
     log(f"exported {len(chosen)} cells to {out}")
     return out
 
 
-def _saved_folder(encoders: SavedEncoders, row: ResultRow) -> Path | None:
-    for counts, folder in encoders.get((row.season_pair, row.method, row.objective), []):
-        if row.removed_pcs in counts:
-            return folder
-    return None
-
-
 def cell_descriptors(
-    plan: Plan, pair: PairData, row: ResultRow, folder: Path | None
+    plan: Plan, pair: PairData, row: ResultRow, saved: tuple[Path, dict] | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """(database, queries) descriptors of the cell: the outside files' rows, or the saved
     encoder's output on the sweep's (preprocessed) images, called as the sweep called it."""
     if row.method in plan.outside:
         sides = plan.outside[row.method]
         return sides["database"].of(pair.names.db), sides["queries"].of(pair.names.query)
-    if folder is None:
+    if saved is None:
         raise UserError(
             f"{row.run}: its saved encoder is missing (logdir's encoders.csv lists none for "
             f"{row.method}): rerun the sweep to save it again"
         )
-    stored = stored_encoder(folder, row.removed_pcs)
+    stored = stored_encoder(saved[0], served=saved[1])
     return tuple(
         np.asarray(stored.encode(stored.params, images), np.float32)
         for images in (pair.db, pair.query)
@@ -111,7 +114,7 @@ def export_cell(
     plan: Plan,
     pair: PairData,
     row: ResultRow,
-    folder: Path | None,
+    saved: tuple[Path, dict] | None,
     out: Path,
     name: str,
     top_k: int,
@@ -122,10 +125,13 @@ def export_cell(
     cfg, staging = plan.cfg, out / INCOMPLETE / pair.name / name
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
-    db, query = cell_descriptors(plan, pair, row, folder)
+    db, query = cell_descriptors(plan, pair, row, saved)
+    folder = saved[0] if saved is not None else None
     desc = Descriptors(
         method=row.method,
-        removed_pcs=(row.removed_pcs,),
+        objective=row.objective,
+        seed=row.seed,
+        parts=(Part(setting=row.setting, removed_pcs=row.removed_pcs, run=name),),
         starts=(0,),
         db=db,
         query=query,
@@ -134,7 +140,7 @@ def export_cell(
         fit_seconds=math.nan,
         encode_ms_per_image=math.nan,
     )
-    ((scores, idx),) = match(desc, pair, row.ds, (row.removed_pcs,), cfg, None, k=top_k)
+    ((scores, idx),) = match(desc, pair, row.ds, (0,), cfg, None, k=top_k)
     correct = pair.truth.correct(idx)
     for side, names in (("database", pair.names.db), ("queries", pair.names.query)):
         files.write_names(staging, side, names)
@@ -144,6 +150,8 @@ def export_cell(
     files.write_retrieval(staging, pair.names.query, pair.names.db, scores, idx, correct)
     if folder is not None:
         selection = {
+            "chosen": saved[1],
+            "setting": row.setting,
             "removed_pcs": row.removed_pcs,
             "val_recall_at_1": row.val_recall_at_1,
             "test_recall_at_1": row.recall_at_1,
@@ -159,12 +167,15 @@ def export_cell(
 
 
 def _facts(logdir, top_k, pair: PairData, row: ResultRow, folder, recall: float, shape) -> dict:
-    setting = f"removed_pcs={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else "-"
+    named = [row.setting, f"removed_pcs={row.removed_pcs}" if sweeps_removed_pcs(row) else ""]
+    setting = " ".join(x for x in named if x) or "-"
     return {
         "exported from": f"{logdir} (run {row.run})",
         "suite version": suite_version(),
         "pair": f"{pair.name}: database {pair.db_season}, queries {pair.query_season}",
-        "method": row.method + (f", objective {row.objective}" if row.objective else ""),
+        "method": row.method
+        + (f", objective {row.objective}" if row.objective else "")
+        + (f", seed {row.seed}" if row.seed != 0 else ""),
         "setting": setting
         + (" (chosen on the validation places)" if row.selected else " (not the chosen one)"),
         "sequence length": f"ds={row.ds}" + (" (sequence scores)" if row.ds > 1 else ""),

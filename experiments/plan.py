@@ -1,26 +1,33 @@
-"""Validating a sweep before JAX loads: its pairs, its logdir, its data and its split.
+"""Validating a sweep before anything is written: its pairs, its logdir, its methods and
+their settings, its data and its split.
 
-``make_plan`` answers bad input (a pair outside the seasons, a foreign logdir, unreadable
-data, a removed-PC count that leaves nothing) with one ``UserError`` line within about a
-second, and returns what the run needs. Nothing is written here.
+``make_plan`` answers bad input (a pair outside the seasons, a foreign logdir, a setting a
+method refuses, unreadable data, a removed-PC count that leaves nothing) with one
+``UserError`` line, the methods' settings before any data is read, and returns what the run
+needs: every fit of every method (``experiments.resolve``). Nothing is written here.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
+from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
-from vpr_jax.config import BENCHMARK_SOURCES, SequenceConfig, SweepConfig
+from vpr_jax.config import (
+    BENCHMARK_PAIRS,
+    BENCHMARK_SOURCES,
+    SequenceConfig,
+    SweepConfig,
+    plain,
+)
 from vpr_jax.data import SEASON_ORDER, Benchmark, Route, load_data, load_train_route
-from vpr_jax.data.benchmark import BENCHMARK_PAIRS
 from vpr_jax.data.precomputed import OutsideSide, read_precomputed
 from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
-from vpr_jax.method_table import SWEEPS_REMOVED_PCS, MethodInfo, resolve_methods
-from vpr_jax.outputs.logdir import check_same_config, prepare_logdir
+from vpr_jax.outputs.logdir import check_same_config, identity, prepare_logdir
 from vpr_jax.progress import Log
 
 
@@ -33,8 +40,13 @@ class Plan(NamedTuple):
     route: Route | None  # loaded, screened and preprocessed (a benchmark's training route)
     split: Split | None  # of the route
     benchmark: Benchmark | None = None  # data.source is a benchmark: its one pair
-    methods: tuple[MethodInfo, ...] = ()  # cfg.methods as rows of the method table
+    methods: tuple = ()  # cfg.methods loaded, settings checked (experiments.resolve.Resolved)
+    fits: tuple = ()  # every method's fits in each pair, in order (experiments.resolve.Fit)
     outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed set -> side -> descriptors
+    training_sets: dict[str, Any] = {}  # method -> what its checks saw (contract.TrainingSet)
+    pca_components: int = 0  # of the pairs' shared PCA fit (0: no method uses it)
+    shared_fit: tuple[Callable, Any] | None = None  # its function and settings
+    identity: dict = {}  # the config's part that decides every cell (outputs.logdir)
 
     def describe(self) -> str:
         """What the sweep runs on, for the run log's first line."""
@@ -100,89 +112,6 @@ def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
     return pairs
 
 
-def fit_counts(
-    cfg: SweepConfig, n_train_images: int, n_pixels: int, given: frozenset[str], log: Log
-) -> SweepConfig:
-    """The removed-PC counts and component counts the training set can serve: PCA of the
-    pair's ``n_train_images`` (both seasons), the season differences of its aligned places.
-
-    Counts the user set on the command line (``given``) are refused when the training set
-    cannot serve them; defaults and a preset's values are trimmed to what it can, with one
-    note each: removed counts dropped, ``ica.n_components`` capped."""
-    limit = min(n_train_images - 1, n_pixels)
-    if "lda" in cfg.methods and cfg.lda.n_components > limit:
-        log(
-            f"note: lda.n_components={cfg.lda.n_components} exceeds the {limit} principal "
-            f"components of {n_train_images} training images: lda whitens in all {limit}"
-        )
-    if not SWEEPS_REMOVED_PCS & set(cfg.methods):
-        return cfg
-    cfg = _trimmed(cfg, n_train_images, n_pixels, given, log)
-    check_components(cfg, n_train_images, n_pixels)
-    return cfg
-
-
-def _trimmed(
-    cfg: SweepConfig, n_train_images: int, n_pixels: int, given: frozenset[str], log: Log
-) -> SweepConfig:
-    """``cfg`` with the counts it did not get from the command line cut to what
-    ``n_train_images`` serve (``fit_counts``)."""
-    limit = min(n_train_images - 1, n_pixels)
-    why = f"PCA of {n_train_images} training images has {limit} components"
-    most = {"removed_pcs": limit - 1}
-    if "diff_pca" in cfg.methods:
-        most["removed_pcs"] = min(limit - 1, n_train_images // 2, n_pixels)
-        why += f" and {n_train_images // 2} aligned places span at most that many changes"
-    n_ica = cfg.ica.n_components
-    if "ica" in cfg.methods and n_ica != "all":
-        if "ica.n_components" in given and "removed_pcs" not in given:
-            most["removed_pcs"] = min(most["removed_pcs"], limit - n_ica)
-            why += f", {n_ica} of them for ICA (ica.n_components)"
-        elif "ica.n_components" not in given:
-            kept = [k for k in cfg.removed_pcs if k <= most["removed_pcs"]] or [0]
-            cap = limit - max(kept)
-            if n_ica > cap >= 1:
-                log(
-                    f"note: ica.n_components={n_ica} capped to {cap}: {why} and removed_pcs "
-                    f"goes up to {max(kept)} (set ica.n_components to choose)"
-                )
-                cfg = dataclasses.replace(cfg, ica=dataclasses.replace(cfg.ica, n_components=cap))
-    if "removed_pcs" not in given:
-        dropped = [k for k in cfg.removed_pcs if k > most["removed_pcs"]]
-        kept = tuple(k for k in cfg.removed_pcs if k <= most["removed_pcs"])
-        if dropped and kept:
-            log(f"note: removed_pcs {dropped} dropped: {why} (set removed_pcs to choose)")
-            cfg = dataclasses.replace(cfg, removed_pcs=kept)
-    return cfg
-
-
-def check_components(cfg: SweepConfig, n_train_images: int, n_pixels: int) -> None:
-    """Refuse removed-PC and component counts the training set cannot serve."""
-    limit = min(n_train_images - 1, n_pixels)
-    if max(cfg.removed_pcs) >= limit:
-        raise UserError(
-            f"removed_pcs={list(cfg.removed_pcs)} leaves no component: PCA of "
-            f"{n_train_images} training images has {limit} components, so use "
-            f"counts below {limit}"
-        )
-    n_ica = cfg.ica.n_components
-    if "ica" in cfg.methods and n_ica != "all" and max(cfg.removed_pcs) + n_ica > limit:
-        raise UserError(
-            f"ica.n_components={n_ica} with removed_pcs up to {max(cfg.removed_pcs)} needs "
-            f"{max(cfg.removed_pcs) + n_ica} components but PCA of {n_train_images} training "
-            f"images has {limit}: use ica.n_components <= {limit - max(cfg.removed_pcs)}, "
-            "ica.n_components=all, or smaller removed_pcs"
-        )
-    most = min(n_train_images // 2, n_pixels)
-    if "diff_pca" in cfg.methods and max(cfg.removed_pcs) > most:
-        raise UserError(
-            f"removed_pcs up to {max(cfg.removed_pcs)} for diff_pca, but the "
-            f"season differences of {n_train_images // 2} aligned training places "
-            f"span at most {most} directions: use counts up to {most}, or leave "
-            "diff_pca out of methods"
-        )
-
-
 def read_outside_sets(cfg: SweepConfig, bench: Benchmark) -> dict[str, dict[str, OutsideSide]]:
     """Every set of outside descriptors (``precomputed.*``), read once in the benchmark's
     order: a file that cannot serve its images is one line now, before any method runs."""
@@ -193,10 +122,19 @@ def read_outside_sets(cfg: SweepConfig, bench: Benchmark) -> dict[str, dict[str,
     }
 
 
-def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -> Plan:
-    """Check pairs and logdir, load (and screen, and preprocess) the route or benchmark, split
-    the route, and fit the removed-PC counts to the training set (``fit_counts``; ``given``:
-    the keys set on the command line)."""
+def make_plan(
+    cfg: SweepConfig,
+    log: Log,
+    given: frozenset[str] = frozenset(),
+    asked: frozenset[str] | None = None,
+) -> Plan:
+    """Check pairs, logdir and the methods' settings, load (and screen, and preprocess) the
+    route or benchmark, split the route, and fit the methods' settings and the removed-PC
+    counts to the training set (``given``: the keys set on the command line; ``asked``:
+    those and the preset's, see ``config.asked_keys``)."""
+    from experiments import resolve  # the methods' modules: JAX
+
+    asked = given if asked is None else asked
     logdir = Path(cfg.logdir).expanduser().resolve()
     benchmark = cfg.data.source in BENCHMARK_SOURCES
     if benchmark:
@@ -209,15 +147,60 @@ def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -
             f"note: sequence.ds={list(cfg.sequence.ds)} is ignored while sequence.enabled="
             "false: single images only (add sequence.enabled=true for the ds axis)"
         )
+    aligned = cfg.data.aligned_training
+    methods = resolve.resolve_methods(cfg, aligned, cfg.data.source, asked)
+    shared_fit = resolve.shared_fit_settings(cfg)
+    data = _load(cfg, benchmark, log)
+    n_images, n_pixels = data.n_train, data.n_pixels
+    sets = {
+        r.name: resolve.training_set(cfg, n_images, n_pixels, aligned, r, given, asked)
+        for r in methods
+    }
+    cfg = resolve.trim_removed(cfg, methods, sets, given, log)
+    methods = resolve.check_training_set(cfg, methods, sets, log)
+    sets = {name: ts._replace(removed_pcs=cfg.removed_pcs) for name, ts in sets.items()}
+    cfg = _with_effective_settings(cfg, methods)
+    check_same_config(logdir, cfg, lambda saved: resolve.settings_identities(saved))
+    return Plan(
+        cfg=cfg,
+        logdir=logdir,
+        pairs=pairs,
+        route=data.route,
+        split=data.split,
+        benchmark=data.benchmark,
+        methods=methods,
+        fits=tuple(f for r in methods for f in resolve.fits(r, cfg)),
+        outside=read_outside_sets(cfg, data.benchmark) if data.benchmark is not None else {},
+        training_sets=sets,
+        pca_components=_pca_components(methods, sets, n_images, n_pixels),
+        shared_fit=shared_fit,
+        identity=identity(cfg),
+    )
+
+
+class _Data(NamedTuple):
+    route: Route | None
+    split: Split | None
+    benchmark: Benchmark | None
+    n_train: int  # the training images of a pair, both seasons (or the benchmark's database)
+    n_pixels: int
+
+
+def _load(cfg: SweepConfig, benchmark: bool, log: Log) -> _Data:
+    """The route and its split, or the benchmark (and its training route)."""
     prep = (cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded, log)
     data = load_data(cfg.data, cfg.seed, log)
     if not benchmark:
         route = preprocess_route(data, *prep)
         split = make_split(route.frame_ids, cfg.split)
-        cfg = fit_counts(cfg, 2 * len(split.train), route.images[pairs[0][0]][0].size, given, log)
-        methods = resolve_methods(cfg.methods, True, cfg.data.source)
-        check_same_config(logdir, cfg)
-        return Plan(cfg=cfg, logdir=logdir, pairs=pairs, route=route, split=split, methods=methods)
+        n_pixels = next(iter(route.images.values()))[0].size
+        return _Data(
+            route=route,
+            split=split,
+            benchmark=None,
+            n_train=2 * len(split.train),
+            n_pixels=n_pixels,
+        )
     bench = preprocess_benchmark(data, *prep)
     if len(bench.query) < 2:
         raise UserError(
@@ -225,7 +208,6 @@ def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -
             "validation and test need at least two"
         )
     route = load_train_route(cfg.data, cfg.seed, log)
-    split = None
     if route is None:
         log(
             f"note: data.source={cfg.data.source} has no aligned training places: the "
@@ -233,23 +215,57 @@ def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -
             f"{cfg.split.val_fraction} of the queries validate; methods and objectives that "
             "learn from the alignment (diff_pca, lda, cross_season) need data.train_source"
         )
-        n_train = len(bench.db)
-    else:
-        route = preprocess_route(route, *prep)
-        split = make_split(route.frame_ids, cfg.split)
-        n_train = 2 * len(split.train)
-    cfg = fit_counts(cfg, n_train, bench.db[0].size, given, log)
-    methods = resolve_methods(
-        cfg.methods, route is not None, cfg.data.source, tuple(cfg.precomputed)
-    )
-    check_same_config(logdir, cfg)
-    return Plan(
-        cfg=cfg,
-        logdir=logdir,
-        pairs=pairs,
+        return _Data(
+            route=None,
+            split=None,
+            benchmark=bench,
+            n_train=len(bench.db),
+            n_pixels=bench.db[0].size,
+        )
+    route = preprocess_route(route, *prep)
+    split = make_split(route.frame_ids, cfg.split)
+    return _Data(
         route=route,
         split=split,
         benchmark=bench,
-        methods=methods,
-        outside=read_outside_sets(cfg, bench),
+        n_train=2 * len(split.train),
+        n_pixels=bench.db[0].size,
     )
+
+
+def _with_effective_settings(cfg: SweepConfig, methods) -> SweepConfig:
+    """``cfg`` with every method's settings as it runs them (defaults filled in, checked,
+    fitted to the training set, axes as lists): what config.yaml records."""
+    from vpr_jax.methods.settings import effective
+
+    builtin, plugins = {}, dict(cfg.plugin)
+    for r in methods:
+        settings = plain(effective(r.method.settings, list(r.combinations), _given(cfg, r)))
+        if r.info.plugin:
+            plugins[r.name] = settings
+        else:
+            builtin[r.name] = settings
+    return dataclasses.replace(cfg, plugin=plugins, **builtin)
+
+
+def _given(cfg: SweepConfig, r) -> dict:
+    from experiments.resolve import given_settings
+
+    return given_settings(cfg, r.info)
+
+
+def _pca_components(methods, sets, n_images: int, n_pixels: int) -> int:
+    """The components the pairs' shared PCA fit holds: what its users need (at least 1),
+    at most the training images' rank limit; 0 when no method uses it."""
+    needed = []
+    for r in methods:
+        if "pca_fit" not in r.method.uses:
+            continue
+        declared = r.method.pca_components
+        for c in r.combinations:
+            n = 1 if declared is None else declared(c.settings, sets[r.name])
+            if n > 0:
+                needed.append(n)
+    if not needed:
+        return 0
+    return min(max(1, *needed), min(n_images - 1, n_pixels))

@@ -14,24 +14,32 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.cells import INCOMPLETE, block_length
+from experiments.cells import INCOMPLETE, block_length, run_name
 from vpr_jax.config import SweepConfig
 from vpr_jax.encoders.saved import FIT_JSON, describe_encoder, read_description
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
-from vpr_jax.evaluation.metrics import SCALAR_NAMES
+from vpr_jax.evaluation.metrics import SCALAR_NAMES, pr_curve
 from vpr_jax.files import atomic_write_text, replace_folder
-from vpr_jax.method_table import SWEEPS_REMOVED_PCS
-from vpr_jax.methods import model_name
+from vpr_jax.method_table import BASELINE, model_name
 from vpr_jax.outputs.logdir import ENCODERS_CSV, LISTING, fitted_root
 from vpr_jax.outputs.palette import compare_labels, label_of
-from vpr_jax.outputs.plots import correct_matches_figure, pr_curves_figure, recall_vs_ds_figure
+from vpr_jax.outputs.plots import (
+    by_label,
+    correct_matches_figure,
+    pr_curves_figure,
+    recall_vs_ds_figure,
+)
 from vpr_jax.outputs.results import (
+    Choice,
     ResultRow,
     baseline_of,
     best_objectives,
     best_rows,
+    choice_order,
+    choices,
     read_results,
     selected_rows,
+    sweeps_removed_pcs,
 )
 from vpr_jax.outputs.tb import CompareSeries, SummaryCell, write_method_run, write_pair_summary
 
@@ -54,9 +62,7 @@ def write_report(logdir: Path, cfg: SweepConfig) -> None:
     write_tb_summaries(logdir, rows, curve, cfg)
     write_tb_compare(logdir, rows, curve, cfg)
     pr_curves_figure(
-        rows,
-        lambda row: (curve(row.run)["precision"], curve(row.run)["recall"]),
-        figures / "pr_curves.png",
+        rows, lambda mine: pooled_curve(mine, curve, cfg.pr_convention), figures / "pr_curves.png"
     )
     correct_matches_figure(rows, figures / "correct_matches.png")
     if len({r.ds for r in rows}) > 1:
@@ -74,40 +80,80 @@ def encoders_csv(listing: list[dict]) -> str:
 
 
 def describe_encoders(root: Path, rows: list[ResultRow]) -> list[dict]:
-    """Each saved encoder's ``encoder.json``, from its ``fit.json`` and the table: the
-    removed-PC count chosen on the validation places among those it serves (single images),
-    with its validation and test recall@1. Rewritten with every report, so a resumed sweep
-    that adds counts moves the choice. Returns the descriptions, each with its folder."""
+    """Each saved encoder's ``encoder.json``, from its ``fit.json`` and the table: among the
+    cells it serves (pca's removed counts), the one chosen on the validation places (single
+    images), with its validation and test recall@1. Rewritten with every report, so a
+    resumed sweep that adds counts moves the choice. Returns the descriptions, each with its
+    folder."""
     shortest, listing = min(r.ds for r in rows), []
+    by_run = {r.run: r for r in rows if r.ds == shortest}
     if not root.is_dir():
         return listing
     for pair in sorted({r.season_pair for r in rows}):
         for fit_file in sorted((root / pair).glob(f"*/{FIT_JSON}")):
             fit = read_description(fit_file.parent, FIT_JSON)
             mine = [
-                r
-                for r in rows
-                if (r.season_pair, r.method, r.objective, r.ds)
-                == (pair, fit["name"], fit["objective"], shortest)
-                and r.removed_pcs in fit["counts"]
+                (cell, by_run[run_name(pair, cell["run"], shortest)])
+                for cell in fit.get("cells", [])
+                if run_name(pair, cell["run"], shortest) in by_run
             ]
             if not mine:
                 continue
-            chosen = max(mine, key=lambda r: (r.selected, r.val_recall_at_1, r.val_auc_pr))
-            by_count = {str(r.removed_pcs): r.val_recall_at_1 for r in mine}
+            cell, chosen = max(
+                mine, key=lambda t: (t[1].selected, t[1].val_recall_at_1, t[1].val_auc_pr)
+            )
             description = describe_encoder(
                 fit_file.parent,
                 {
+                    "model": model_name(fit["name"], fit["objective"]),
+                    "chosen": cell["served"],
+                    "setting": chosen.setting,
                     "removed_pcs": chosen.removed_pcs,
                     "val_recall_at_1": chosen.val_recall_at_1,
-                    "val_recall_at_1_by_count": by_count,
+                    "val_recall_at_1_by_count": {
+                        str(r.removed_pcs): r.val_recall_at_1 for _, r in mine
+                    },
                     "test_recall_at_1": chosen.recall_at_1,
                     "selected": bool(chosen.selected),
                     "run": chosen.run,
                 },
             )
-            listing.append({**description, "folder": str(fit_file.parent)})
+            listing.append(
+                {
+                    **description,
+                    "method": fit["name"],
+                    "selected": int(chosen.selected),
+                    "folder": str(fit_file.parent),
+                }
+            )
     return listing
+
+
+def pooled_curve(rows: list[ResultRow], curve: "Curves", pr_convention: str) -> tuple:
+    """(precision, recall) of a method's rows: its own curve, or with several seeds the
+    curve of all their queries pooled."""
+    if len(rows) == 1:
+        return curve(rows[0].run)["precision"], curve(rows[0].run)["recall"]
+    arrays = {
+        name: np.concatenate([curve(r.run)[name] for r in rows])
+        for name in ("best_scores", "best_correct", "has_match")
+    }
+    precision, recall, _ = pr_curve(
+        arrays["best_scores"],
+        arrays["best_correct"].astype(bool),
+        arrays["has_match"].astype(bool),
+        pr_convention=pr_convention,
+    )
+    return precision, recall
+
+
+def pooled_arrays(rows: list[ResultRow], curve: "Curves") -> dict[str, np.ndarray]:
+    """best_scores, best_correct and has_match of a method's rows, its seeds' queries one
+    after another."""
+    return {
+        name: np.concatenate([curve(r.run)[name] for r in rows])
+        for name in ("best_scores", "best_correct", "has_match")
+    }
 
 
 def curve_reader(logdir: Path) -> Curves:
@@ -122,23 +168,33 @@ def curve_reader(logdir: Path) -> Curves:
     return curve
 
 
+def _setting_text(row: ResultRow) -> str:
+    """A cell's setting in words: its swept settings and removed count."""
+    return " ".join(
+        x for x in (row.setting, f"k={row.removed_pcs}" if sweeps_removed_pcs(row) else "") if x
+    )
+
+
 def write_tb_summaries(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: SweepConfig):
     """Per season pair, one TensorBoard run holding every method's selected cell
-    (``vpr_jax.outputs.tb.write_pair_summary``), rewritten whole (aside, then moved into place).
+    (``vpr_jax.outputs.tb.write_pair_summary``; several seeds: their mean, the PR curve of
+    their queries pooled), rewritten whole (aside, then moved into place).
     ``tensorboard --logdir LOGDIR/summary`` opens on them."""
     by_pair: dict[str, list[SummaryCell]] = {}
-    for row in selected_rows(rows):
-        label = model_name(row.method, row.objective)
-        by_pair.setdefault(row.season_pair, []).append(
-            SummaryCell(
-                label=label + (f"_ds{row.ds:02d}" if row.ds != 1 else ""),
-                setting=f"k={row.removed_pcs}" if row.method in SWEEPS_REMOVED_PCS else "",
-                scalars={name: getattr(row, name) for name in SCALAR_NAMES},
-                best_scores=curve(row.run)["best_scores"],
-                best_correct=curve(row.run)["best_correct"],
-                has_match=curve(row.run)["has_match"],
+    for (pair, label), mine in by_label(selected_rows(rows)).items():
+        for ds in sorted({r.ds for r in mine}):
+            at_ds = [r for r in mine if r.ds == ds]
+            by_pair.setdefault(pair, []).append(
+                SummaryCell(
+                    label=label + (f"_ds{ds:02d}" if ds != 1 else ""),
+                    setting=_setting_text(at_ds[0]),
+                    scalars={
+                        name: float(np.mean([getattr(r, name) for r in at_ds]))
+                        for name in SCALAR_NAMES
+                    },
+                    **pooled_arrays(at_ds, curve),
+                )
             )
-        )
     for pair, cells in by_pair.items():
         staging = logdir / INCOMPLETE / SUMMARY / pair
         shutil.rmtree(staging, ignore_errors=True)
@@ -150,11 +206,13 @@ def write_tb_summaries(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: 
 
 
 def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: SweepConfig):
-    """``LOGDIR/compare/<method>``: one run per method (``tb.write_method_run``) over the
-    single-image cells (the shortest ds), rewritten whole. Runs are written one after
-    another in ``palette.compare_labels`` order, which is how TensorBoard colours them
-    (``vpr_jax.outputs.palette``); a method without the removed-PC axis is a flat line over
-    its pair's counts."""
+    """``LOGDIR/compare/<label>``: one run per method, objective and swept setting
+    (``tb.write_method_run``) over the single-image cells (the shortest ds), rewritten
+    whole: recall@1 and AUC-PR against the removed count (several seeds: their mean), and
+    the PR curve of the setting the validation places choose (pooled over seeds). Runs are
+    written one after another in ``palette.compare_labels`` order, which is how TensorBoard
+    colours them (``vpr_jax.outputs.palette``); a method without the removed-PC axis is a
+    flat line over its pair's counts."""
     shortest = min(r.ds for r in rows)
     single = [r for r in rows if r.ds == shortest]
     staging = logdir / INCOMPLETE / COMPARE
@@ -163,23 +221,20 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
     for label in compare_labels(single):
         series = {}
         for pair in dict.fromkeys(r.season_pair for r in single):
-            mine = sorted(
-                (r for r in single if r.season_pair == pair and label_of(r) == label),
-                key=lambda r: r.removed_pcs,
-            )
+            mine = [r for r in single if r.season_pair == pair and label_of(r) == label]
             if not mine:
                 continue
             counts = sorted({r.removed_pcs for r in single if r.season_pair == pair})
-            points = [(r.removed_pcs, r.recall_at_1, r.auc_pr) for r in mine]
-            if mine[0].method not in SWEEPS_REMOVED_PCS:
-                points = [(k, mine[0].recall_at_1, mine[0].auc_pr) for k in counts]
-            chosen = curve(next(r for r in mine if r.selected).run)
-            series[pair] = CompareSeries(
-                points=points,
-                best_scores=chosen["best_scores"],
-                best_correct=chosen["best_correct"],
-                has_match=chosen["has_match"],
-            )
+            by_k: dict[int, list[ResultRow]] = {}
+            for r in mine:
+                by_k.setdefault(r.removed_pcs, []).append(r)
+            points = [
+                (k, _mean(v, "recall_at_1"), _mean(v, "auc_pr")) for k, v in sorted(by_k.items())
+            ]
+            if not sweeps_removed_pcs(mine[0]):
+                points = [(k, points[0][1], points[0][2]) for k in counts]
+            chosen = max(next(iter(choices(mine).values())), key=Choice.val_score)
+            series[pair] = CompareSeries(points=points, **pooled_arrays(list(chosen.rows), curve))
         write_method_run(
             staging / label,
             series,
@@ -187,6 +242,10 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
             n_thresholds=cfg.tb.pr_thresholds,
         )
     replace_folder(staging, logdir / COMPARE)
+
+
+def _mean(rows: list[ResultRow], metric: str) -> float:
+    return float(np.mean([getattr(r, metric) for r in rows]))
 
 
 def differences_to_pca(
@@ -199,7 +258,7 @@ def differences_to_pca(
     out = {}
     for row in selected:
         base = baseline_of(row, selected)
-        if row.method == "pca" or base is None:
+        if row.method == BASELINE or base is None:
             continue
         mine, theirs = curve(row.run)["best_correct"], curve(base.run)["best_correct"]
         if mine.shape != theirs.shape:
@@ -220,8 +279,10 @@ CELL_COLUMNS = (
     "season_pair",
     "method",
     "objective",
+    "setting",
     "removed_pcs",
     "ds",
+    "seed",
     "recall_at_1",
     "auc_pr",
     "recall_at_100_precision",
@@ -234,8 +295,10 @@ HEADLINE_COLUMNS = (
     "season_pair",
     "method",
     "objective",
+    "setting",
     "removed_pcs",
     "ds",
+    "seed",
     "val_recall_at_1",
     "recall_at_1",
     "95% CI",
@@ -244,31 +307,48 @@ HEADLINE_COLUMNS = (
     "recall@1 - PCA [95% CI]",
     "vs PCA",
 )
+OPTIONAL = ("setting", "ds", "seed")  # columns shown when a sweep has more than one value
 SELECTION_NOTE = (
-    "The removed-PC count with the best recall@1 on the validation places (the end of "
-    "each season's training stretch; for a benchmark trained on its database, its last "
-    "queries, held out of the test), scored on the test places. Intervals: 95%, block "
-    "bootstrap over the queries. vs PCA: a paired bootstrap of the difference to the "
-    "pair's selected PCA row on the same queries; better / worse when its interval "
-    "excludes 0."
+    "The setting (removed-PC count, and the method's swept settings) with the best recall@1 "
+    "on the validation places (the end of each season's training stretch; for a benchmark "
+    "trained on its database, its last queries, held out of the test), scored on the test "
+    "places; with several seeds, the best mean over them, every seed's row shown. "
+    "Intervals: 95%, block bootstrap over the queries. vs PCA: a paired bootstrap of the "
+    "difference to the pair's selected PCA row on the same queries; better / worse when "
+    "its interval excludes 0."
 )
+
+
+def _shown(rows: list[ResultRow]) -> set[str]:
+    """The optional columns this table needs: a setting swept, sequences, several seeds."""
+    shown = set()
+    if any(r.setting for r in rows):
+        shown.add("setting")
+    if any(r.ds != 1 for r in rows):
+        shown.add("ds")
+    if len({r.seed for r in rows}) > 1:
+        shown.add("seed")
+    return shown
 
 
 def markdown_table(rows: list[ResultRow], differences: dict[str, Difference] | None = None) -> str:
     """results.md: the validation-selected setting per method (recall@1 and AUC-PR with
     their 95% intervals, and the paired difference to PCA that ``differences`` holds per
-    run), then the best count chosen on the test queries (optimistic), then every cell.
-    The ds column appears once a sweep holds sequence-matching cells."""
-    sequences = any(r.ds != 1 for r in rows)
+    run), the spread over seeds where there are several, then the best setting chosen on
+    the test queries (optimistic), then every cell. The setting, ds and seed columns appear
+    once a sweep has more than one value of them."""
+    shown = _shown(rows)
     preferred = best_objectives(rows)  # runs marked "best"
     first = rows[0] if rows else None
     intro = (
         f"{first.n_test} queries per pair, a match is correct within {first.ground_truth}, "
-        f"seed {first.seed}. recall_at_1 is the fraction of correct matches (= precision at "
-        "100% recall)."
+        f"data seed {first.seed}. recall_at_1 is the fraction of correct matches (= precision "
+        "at 100% recall)."
         if first
         else "No cells yet."
     )
+    if first is not None and "seed" not in shown:
+        intro = intro.replace("data seed", "seed")
     lines = [
         "# Results",
         "",
@@ -278,16 +358,17 @@ def markdown_table(rows: list[ResultRow], differences: dict[str, Difference] | N
         "",
         SELECTION_NOTE,
         "",
-        *_headline(selected_rows(rows), differences or {}, sequences, preferred),
+        *_headline(selected_rows(rows), differences or {}, shown, preferred),
         *_best_objective_note(rows, preferred),
         "",
-        "## Best removed-PC count per method, chosen on the test queries (optimistic)",
+        *_seed_spread(rows, differences or {}),
+        "## Best setting per method, chosen on the test queries (optimistic)",
         "",
-        *_cell_table(best_rows(rows), sequences),
+        *_cell_table(best_rows(rows), shown),
         "",
         "## Every cell",
         "",
-        *_cell_table(rows, sequences),
+        *_cell_table(rows, shown),
         "",
         *_not_converged(rows),
     ]
@@ -295,7 +376,10 @@ def markdown_table(rows: list[ResultRow], differences: dict[str, Difference] | N
 
 
 def _in_order(rows: list[ResultRow]) -> list[ResultRow]:
-    return sorted(rows, key=lambda r: (r.season_pair, r.method, r.objective, r.removed_pcs, r.ds))
+    return sorted(
+        rows,
+        key=lambda r: (r.season_pair, r.method, r.objective, *choice_order(r)[:2], r.ds, r.seed),
+    )
 
 
 def _markdown(head: tuple[str, ...], body: list[list[str]]) -> list[str]:
@@ -303,12 +387,12 @@ def _markdown(head: tuple[str, ...], body: list[list[str]]) -> list[str]:
     return lines + ["| " + " | ".join(cells) + " |" for cells in body]
 
 
-def _without_ds(columns: tuple[str, ...], sequences: bool) -> tuple[str, ...]:
-    return columns if sequences else tuple(c for c in columns if c != "ds")
+def _columns(columns: tuple[str, ...], shown: set[str]) -> tuple[str, ...]:
+    return tuple(c for c in columns if c not in OPTIONAL or c in shown)
 
 
-def _cell_table(rows: list[ResultRow], sequences: bool) -> list[str]:
-    cols = _without_ds(CELL_COLUMNS, sequences)
+def _cell_table(rows: list[ResultRow], shown: set[str]) -> list[str]:
+    cols = _columns(CELL_COLUMNS, shown)
     body = [
         [f"{v:.3f}" if isinstance(v, float) else str(v) for v in (getattr(r, c) for c in cols)]
         for r in _in_order(rows)
@@ -323,7 +407,7 @@ def _ci(low: float, high: float) -> str:
 def _versus_pca(row: ResultRow, differences: dict[str, Difference]) -> tuple[str, str]:
     """(the difference to PCA with its interval, its label) for the headline table."""
     diff = differences.get(row.run)
-    if row.method == "pca":
+    if row.method == BASELINE:
         return "", "baseline"
     if diff is None:
         return "", "n/a"
@@ -333,19 +417,21 @@ def _versus_pca(row: ResultRow, differences: dict[str, Difference]) -> tuple[str
 def _headline(
     rows: list[ResultRow],
     differences: dict[str, Difference],
-    sequences: bool,
+    shown: set[str],
     preferred: set[str],
 ) -> list[str]:
     body = []
     for r in _in_order(rows):
         versus, label = _versus_pca(r, differences)
+        optional = {"setting": r.setting, "ds": str(r.ds), "seed": str(r.seed)}
         body.append(
             [
                 r.season_pair,
                 r.method,
                 r.objective + (" best" if r.run in preferred else ""),
+                *(optional[c] for c in ("setting",) if c in shown),
                 str(r.removed_pcs),
-                *((str(r.ds),) if sequences else ()),
+                *(optional[c] for c in ("ds", "seed") if c in shown),
                 f"{r.val_recall_at_1:.3f}",
                 f"{r.recall_at_1:.3f}",
                 _ci(r.recall_at_1_ci_low, r.recall_at_1_ci_high),
@@ -355,7 +441,68 @@ def _headline(
                 label,
             ]
         )
-    return _markdown(_without_ds(HEADLINE_COLUMNS, sequences), body)
+    return _markdown(_columns(HEADLINE_COLUMNS, shown), body)
+
+
+def _spread(values: list[float]) -> str:
+    """min-max for two seeds, the standard deviation for three or more."""
+    if len(values) < 3:
+        return f"{min(values):.3f}-{max(values):.3f}"
+    return f"sd {float(np.std(values, ddof=1)):.3f}"
+
+
+def _seed_spread(rows: list[ResultRow], differences: dict[str, Difference]) -> list[str]:
+    """results.md's seed section: per selected setting fitted with several seeds, the mean
+    recall@1 over them, its spread, and each seed's paired difference to PCA."""
+    groups: dict[tuple, list[ResultRow]] = {}
+    for r in selected_rows(rows):
+        key = (r.season_pair, r.method, r.objective, r.setting, r.removed_pcs, r.ds)
+        groups.setdefault(key, []).append(r)
+    several = {k: sorted(v, key=lambda r: r.seed) for k, v in groups.items() if len(v) > 1}
+    if not several:
+        return []
+    body = []
+    for (pair, method, objective, setting, k, ds), mine in sorted(several.items()):
+        recalls = [r.recall_at_1 for r in mine]
+        diffs = [differences.get(r.run) for r in mine]
+        body.append(
+            [
+                pair,
+                method,
+                objective,
+                setting,
+                str(k),
+                str(ds),
+                ", ".join(str(r.seed) for r in mine),
+                f"{float(np.mean(recalls)):.3f}",
+                _spread(recalls),
+                "; ".join(f"{d.value:+.3f} ({d.label})" if d is not None else "n/a" for d in diffs),
+            ]
+        )
+    head = (
+        "season_pair",
+        "method",
+        "objective",
+        "setting",
+        "removed_pcs",
+        "ds",
+        "seeds",
+        "mean recall_at_1",
+        "spread",
+        "recall@1 - PCA per seed",
+    )
+    return [
+        "## Seeds",
+        "",
+        "Each selected setting fitted with several seeds (``seeds``; the data, split and "
+        "route follow ``seed`` and never change with them): the mean recall@1 over the "
+        "seeds, its spread (min-max for two seeds, the standard deviation for three or "
+        "more) and each seed's paired difference to PCA. A difference between methods "
+        "smaller than this spread is seed noise.",
+        "",
+        *_markdown(head, body),
+        "",
+    ]
 
 
 def _best_objective_note(rows: list[ResultRow], preferred: set[str]) -> list[str]:
@@ -363,7 +510,9 @@ def _best_objective_note(rows: list[ResultRow], preferred: set[str]) -> list[str
     best = [r for r in rows if r.run in preferred]
     if not best:
         return []
-    named = ", ".join(f"{r.season_pair} {r.method} {r.objective}" for r in _in_order(best))
+    named = ", ".join(
+        dict.fromkeys(f"{r.season_pair} {r.method} {r.objective}" for r in _in_order(best))
+    )
     return ["", f"Best objective by validation recall@1 (marked best): {named}."]
 
 

@@ -249,6 +249,15 @@ def small_sweep(tmp_path_factory):
     return shared_sweep(tmp_path_factory, "small_sweep", *SMALL)
 
 
+def method_settings(cfg, name: str):
+    """A built-in method's settings as the plan checks them (its ``Settings``; the first
+    combination of its axes), before they meet the training set."""
+    from experiments.resolve import given_settings, resolve
+    from vpr_jax.method_table import METHODS
+
+    return resolve(METHODS[name], given_settings(cfg, METHODS[name])).combinations[0].settings
+
+
 def numpy_cosine(q, d):
     """The oracle for cosine similarity: (n_queries, n_db), rows and columns L2-normalised."""
     q = q / np.linalg.norm(q, axis=1, keepdims=True)

@@ -19,7 +19,13 @@ from vpr_jax.config import TrainConfig
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import pca
-from vpr_jax.encoders.train import fit_autoencoder, make_optimizer, make_train_step
+from vpr_jax.encoders.train import (
+    TrainingData,
+    TrainOptions,
+    fit_autoencoder,
+    make_optimizer,
+    make_train_step,
+)
 from vpr_jax.evaluation.matching import top_k_matches
 
 
@@ -84,9 +90,15 @@ def main() -> None:
             split,
         )
         out[f"{name}_grad_rel"] = max(jax.tree.leaves(rel))
-        a = fit_autoencoder(spec, images[:160], images[160:], jax.random.key(0), settings)
+        a = fit_autoencoder(
+            spec,
+            TrainingData(images[:160], images[160:]),
+            TrainOptions(key=jax.random.key(0), settings=settings),
+        )
         b = fit_autoencoder(
-            spec, images[:160], images[160:], jax.random.key(0), settings, mesh=mesh
+            spec,
+            TrainingData(images[:160], images[160:]),
+            TrainOptions(key=jax.random.key(0), settings=settings, mesh=mesh),
         )
         out[f"{name}_params"] = max_diff(a.params, b.params)
         out[f"{name}_val_loss"] = [a.best_val_loss, b.best_val_loss]

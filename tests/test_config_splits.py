@@ -5,7 +5,7 @@ import sys
 import numpy as np
 import pytest
 
-from tests.conftest import run_process
+from tests.conftest import method_settings, run_process
 from vpr_jax.config import SplitConfig, parse_config
 from vpr_jax.data.splits import make_split
 from vpr_jax.errors import UserError
@@ -38,8 +38,9 @@ def test_paper_preset_is_the_seeds_protocol_and_the_command_line_overrides_it():
     # The seed's 2,500 training and 450 test images per season, a 100-frame gap.
     assert (cfg.split.n_train, cfg.split.n_test, cfg.split.gap) == (2500, 450, 100)
     assert cfg.tolerance == 10  # original frames: the neighbouring sampled frame
-    assert cfg.ica.n_components == 256
-    assert cfg.fae.objective == cfg.cae.objective == ("reconstruct",)
+    assert method_settings(cfg, "ica").n_components == 256
+    objectives = (method_settings(cfg, m).objective for m in ("fae", "cae"))
+    assert set(objectives) == {("reconstruct",)}
     # What the preset leaves alone stays the default.
     assert (cfg.seed, cfg.methods, cfg.removed_pcs) == (
         default.seed,
@@ -162,7 +163,7 @@ def test_a_saved_config_carries_its_format_and_reads_back_as_its_identity(tmp_pa
     from vpr_jax.errors import UserError
     from vpr_jax.outputs.logdir import FORMAT, config_yaml, saved_identity
 
-    cfg = parse_config(["fae.input_centre=0", "methods=[raw,pca]"])
+    cfg = parse_config(["tolerance=4", "methods=[raw,pca]"])
     path = tmp_path / "config.yaml"
     path.write_text(config_yaml(cfg))
     assert yaml.safe_load(path.read_text())["format"] == FORMAT
@@ -175,23 +176,16 @@ def test_a_saved_config_carries_its_format_and_reads_back_as_its_identity(tmp_pa
             saved_identity(path)
 
 
-def test_the_config_names_what_the_library_registers():
-    """config.py loads without JAX, so it spells the names of optimizers, ICA contrasts, PR
-    conventions and data sources itself (and reads the methods from the JAX-free method
-    table); they must be the library's."""
-    from vpr_jax import config, method_table
-    from vpr_jax.data import nordland
-    from vpr_jax.data.benchmark import BENCHMARK_PAIRS
-    from vpr_jax.encoders import ica, train
-    from vpr_jax.evaluation import metrics
+def test_every_method_of_the_table_loads_with_its_settings():
+    """Each line of the method table names an object of the one contract, whose settings
+    dataclass takes every default (the table itself and config.py load without JAX)."""
+    from experiments.resolve import load
+    from vpr_jax import method_table
 
-    for info in method_table.BUILTIN:  # each row names a describe function that exists
-        assert callable(method_table.describe_function(info)), info.describe
-    assert config.PR_CONVENTIONS == metrics.PR_CONVENTIONS
-    assert config.OPTIMIZERS == tuple(train.OPTIMIZERS)
-    assert config.ICA_FUNS == ica.FUNS
-    assert config.ROUTE_SOURCES == ("synthetic", *nordland.SOURCES)
-    assert config.BENCHMARK_SOURCES == tuple(BENCHMARK_PAIRS)
+    for info in method_table.BUILTIN:
+        method = load(info)
+        assert callable(method.fit) and callable(method.encode), info.method
+        assert method.settings is None or method.settings() is not None
 
 
 def test_the_config_and_the_logdir_checks_load_without_jax():

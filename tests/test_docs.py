@@ -13,14 +13,21 @@ PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
 
 
 def config_keys(obj=None, prefix=""):
-    """Dotted names of every leaf field, e.g. ``seed`` and ``data.root``. Nesting is read
-    off the default values: with ``from __future__ import annotations`` field.type is a
-    string."""
+    """Dotted names of every leaf field, e.g. ``seed``, ``data.root`` and each built-in
+    method's settings, ``ica.n_components`` (its ``Settings``). Nesting is read off the
+    default values: with ``from __future__ import annotations`` field.type is a string."""
+    from experiments.resolve import load
+    from vpr_jax.method_table import METHODS
+
     obj = SweepConfig() if obj is None else obj
     keys = set()
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
-        if dataclasses.is_dataclass(value):
+        if not prefix and f.name in METHODS:
+            settings = load(METHODS[f.name]).settings
+            if settings is not None:
+                keys |= config_keys(settings(), f"{f.name}.")
+        elif dataclasses.is_dataclass(value):
             keys |= config_keys(value, f"{prefix}{f.name}.")
         else:
             keys.add(prefix + f.name)
@@ -87,9 +94,10 @@ def test_the_worked_example_of_your_own_method_runs(tmp_path, monkeypatch):
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     (tmp_path / "edges.py").write_text(code)
     monkeypatch.syspath_prepend(str(tmp_path))
-    from vpr_jax.method_table import load_plugin
+    from experiments.resolve import load
+    from vpr_jax.method_table import info_of
 
-    edges = load_plugin("edges:edges")
+    edges = load(info_of("edges:edges"))
     rng = np.random.default_rng(0)
     train = rng.random((40, 32, 64), dtype=np.float32)
     state = edges.fit(train, None, None, n_components=16)

@@ -143,7 +143,7 @@ def test_a_small_benchmark_runs_on_the_default_counts(bench, tmp_path):
         "note: ica.n_components=128 capped to 19: PCA of 120 training images has 119 "
         "components and removed_pcs goes up to 100 (set ica.n_components to choose)"
     ]
-    assert cfg.removed_pcs == (0, 5, 10, 20, 50, 100) and cfg.ica.n_components == 19
+    assert cfg.removed_pcs == (0, 5, 10, 20, 50, 100) and cfg.ica["n_components"] == 19
     cfg, notes = _plan(bench, tmp_path, "ica.n_components=100")  # the counts give way to it
     assert cfg.removed_pcs == (0, 5, 10)
     assert any("removed_pcs [20, 50, 100] dropped" in n for n in notes)

@@ -244,46 +244,35 @@ def test_encode_is_pure_under_jit_vmap_and_inside_other_jitted_code():
 
 
 def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
-    from experiments.cells import match
-    from vpr_jax.config import parse_config
-    from vpr_jax.data.ground_truth import Tolerance
-    from vpr_jax.methods import MethodContext, PairData, fit_pair_pca
-    from vpr_jax.methods.linear import describe_ica, describe_pca
+    """pca and ica, as the sweep calls them, work from the PCA fit they are handed (the
+    pair's shared one), not from one of their own."""
+    from vpr_jax.methods import ica as ica_method
+    from vpr_jax.methods import pca as pca_method
+    from vpr_jax.methods.contract import PCAFit
 
     route = synthetic_route(300, ("summer", "fall"), 0)
     s, f = route.images["summer"], route.images["fall"]
-    test_ids, val_ids = route.frame_ids[250:], route.frame_ids[220:240]
-    pair = PairData(
-        db_season="summer",
-        query_season="fall",
-        train=np.concatenate([s[:200], f[:200]]),
-        db=s[250:],
-        query=f[250:],
-        db_ids=test_ids,
-        query_ids=test_ids,
-        truth=Tolerance.of(test_ids, test_ids, 2),
-        val_db=s[220:240],
-        val_query=f[220:240],
-        val_db_ids=val_ids,
-        val_query_ids=val_ids,
-        val_truth=Tolerance.of(val_ids, val_ids, 2),
+    train, query, db = np.concatenate([s[:200], f[:200]]), f[250:], s[250:]
+    fit = PCAFit(pca.fit_pca(train, 16), 0.0, (0, 4))
+    state = pca_method.method.fit(train, None, None, pca_fit=fit, solver="auto", output="pixels")
+    np.testing.assert_array_equal(
+        pca_method.method.encode(state, query, removed_pcs=4),
+        pca.encode(fit.state, query, 4, "pixels"),
     )
-    cfg = parse_config(["ica.n_components=12", "tb.n_basis_images=5"])
-    fit = fit_pair_pca(pair, cfg, None)
-    ctx = MethodContext(removed_pcs=(0, 4), pca_fit=fit)
-    cells = list(describe_ica(pair, cfg, ctx))
-    (coefficients,) = describe_pca(pair, cfg, ctx)
-    # PCA and ICA both work from the fit they are handed, not from one of their own.
-    np.testing.assert_array_equal(coefficients.query, pca.suffix_descriptors(fit.state, pair.query))
-    other = fit_pair_pca(pair._replace(train=pair.train[::-1][:300]), cfg, None)
-    (elsewhere,) = describe_ica(pair, cfg, ctx._replace(removed_pcs=(4,), pca_fit=other))
-    assert not np.allclose(elsewhere.query, cells[1].query)
-    direct = ica.fit_ica(pair.train, jax.random.key(cfg.seed), n_components=12, removed_pcs=4)
-    q = np.asarray(ica.encode(direct, pair.query))
-    d = np.asarray(ica.encode(direct, pair.db))
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    (top,) = match(cells[1], pair, 1, (4,), cfg, None)
-    np.testing.assert_array_equal(top[1][:, 0], np.argmax(q @ d.T, axis=1))
-    assert cells[1].removed_pcs == (4,) and cells[1].basis[0].shape == (5, 32, 64)
-    assert cells[1].n_iter == int(direct.n_iter) and cells[1].fit_seconds > fit.seconds
+    settings = {"n_components": 12, "fun": "logcosh", "alpha": 1.0, "max_iter": 200, "tol": 1e-4}
+    key = jax.random.key(0)
+    mine = ica_method.fit(train, None, key, pca_fit=fit, removed_pcs=4, n_init=1, **settings)
+    other = PCAFit(pca.fit_pca(train[::-1][:300], 16), 0.0, (0, 4))
+    elsewhere = ica_method.fit(train, None, key, pca_fit=other, removed_pcs=4, n_init=1, **settings)
+    assert not np.allclose(ica.encode(elsewhere, query), ica.encode(mine, query))
+    direct = ica.fit_ica(train, key, n_components=12, removed_pcs=4)
+
+    def top1(state):
+        q, d = (np.asarray(ica.encode(state, x)) for x in (query, db))
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+        return np.argmax(q @ d.T, axis=1)
+
+    np.testing.assert_array_equal(top1(mine), top1(direct))
+    report = ica_method.method.report(mine, {**settings, "removed_pcs": 4, "max_iter": 200})
+    assert report.basis.shape == (12, 32 * 64) and report.n_iter == int(direct.n_iter)

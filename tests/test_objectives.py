@@ -7,7 +7,7 @@ import pytest
 from flax import nnx
 from omegaconf import OmegaConf
 
-from tests.conftest import assert_one_line_error, run_cli, tail_validation
+from tests.conftest import assert_one_line_error, method_settings, run_cli, tail_validation
 from tests.inputs import frame_image, write_release
 from vpr_jax.config import PRESET_DIR, SplitConfig, TrainConfig, parse_config
 from vpr_jax.data.augment import AugmentConfig
@@ -18,7 +18,7 @@ from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.saved import load_encoder
-from vpr_jax.encoders.train import fit_autoencoder
+from vpr_jax.encoders.train import TrainingData, TrainOptions, fit_autoencoder
 from vpr_jax.errors import UserError
 
 
@@ -94,7 +94,11 @@ def test_cross_season_trains_checkpoints_and_loads(spec, tmp_path):
     def fit(train, val, objective):
         key = jax.random.key(0)
         return fit_autoencoder(
-            spec, train, val, key, settings, checkpoint_dir=tmp_path / "m", objective=objective
+            spec,
+            TrainingData(train, val),
+            TrainOptions(
+                key=key, settings=settings, checkpoint_dir=tmp_path / "m", objective=objective
+            ),
         )
 
     result = fit(pairs, val_pairs, "cross_season")
@@ -124,17 +128,22 @@ def test_cross_season_lowers_its_validation_loss():
         )
     )
     result = fit_autoencoder(
-        spec, pairs, val_pairs, jax.random.key(0), settings, objective="cross_season"
+        spec,
+        TrainingData(pairs, val_pairs),
+        TrainOptions(key=jax.random.key(0), settings=settings, objective="cross_season"),
     )
     assert result.best_val_loss < 0.8 * before
 
 
 def test_an_objective_list_is_one_value_or_many():
-    assert parse_config(["fae.objective=cross_season"]).fae.objective == ("cross_season",)
-    cfg = parse_config(["cae.objective=[cross_season,reconstruct]"])
-    assert cfg.cae.objective == ("cross_season", "reconstruct")
-    assert parse_config(["preset=paper"]).fae.objective == ("reconstruct",)
-    assert parse_config([]).fae.objective == ("reconstruct", "cross_season")
+    def objective(argv, name="fae"):
+        return method_settings(parse_config(argv), name).objective
+
+    assert objective(["fae.objective=cross_season"]) == ("cross_season",)
+    both = objective(["cae.objective=[cross_season,reconstruct]"], "cae")
+    assert both == ("cross_season", "reconstruct")
+    assert objective(["preset=paper"]) == ("reconstruct",)
+    assert objective([]) == ("reconstruct", "cross_season")
 
 
 @pytest.mark.parametrize(
@@ -158,9 +167,28 @@ def test_the_real_preset_sets_no_data_keys_and_its_logdir_names_the_source():
     preset = OmegaConf.load(PRESET_DIR / "real.yaml")
     assert not {"data", "split", "season_pairs", "tolerance"} & set(preset)
     assert parse_config(["preset=real"]).logdir == "runs/real_synthetic"
-    cfg = parse_config(["preset=real", "data.source=vpr_bench", "data.root=/nowhere"])
+    argv = ["preset=real", "data.source=vpr_bench", "data.root=/nowhere"]
+    cfg = parse_config(argv)
     assert cfg.logdir == "runs/real_vpr_bench" and cfg.train.augment == "auto"
-    # Without aligned training places its paired objectives give way to the seed's.
-    assert cfg.fae.objective == cfg.cae.objective == ("reconstruct",)
+    # Without aligned training places its paired objectives give way to the seed's (each
+    # auto-encoder's check), unless named on the command line.
+    from experiments.resolve import load
+    from vpr_jax.method_table import METHODS
+    from vpr_jax.methods.contract import TrainingSet
+
+    for name in ("fae", "cae"):
+        unaligned = TrainingSet(
+            n_images=100,
+            n_pixels=2048,
+            aligned=False,
+            removed_pcs=(0,),
+            given=frozenset(),
+            asked=frozenset(),  # a preset for any source asks for nothing
+        )
+        check = load(METHODS[name]).check
+        assert check(method_settings(cfg, name), unaligned, print).objective == ("reconstruct",)
+        named = method_settings(parse_config([*argv, f"{name}.objective=contrastive"]), name)
+        with pytest.raises(UserError, match=f"{name}.objective=contrastive needs aligned"):
+            check(named, unaligned._replace(asked=frozenset({"objective"})), print)
     assert parse_config(["preset=real", "logdir=mine"]).logdir == "mine"
     assert parse_config(["train.augment=false"]).train.augment is False

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from experiments.fitting import checked_encode
+from experiments.resolve import resolve_methods, settings_identities
 from tests.conftest import (
     REPO,
     assert_one_line_error,
@@ -23,8 +25,7 @@ from tests.conftest import (
 )
 from vpr_jax.config import parse_config
 from vpr_jax.errors import UserError
-from vpr_jax.method_table import METHODS, plugin_info, resolve_methods
-from vpr_jax.methods.plugin import checked_encode
+from vpr_jax.method_table import MethodInfo
 from vpr_jax.outputs.logdir import check_same_config, config_yaml
 from vpr_jax.outputs.results import COLUMNS, read_results
 
@@ -162,7 +163,7 @@ def test_a_method_that_fails_is_one_line_and_the_fixed_method_resumes(tmp_path):
     assert [r.method for r in read_results(logdir / "results.csv")] == ["raw", "centred_pixels"]
 
 
-INFO = plugin_info("my_methods:centred_pixels", needs_alignment=False)
+INFO = MethodInfo(name="centred_pixels", method="my_methods:centred_pixels", plugin=True)
 
 
 @pytest.mark.parametrize(
@@ -187,11 +188,13 @@ def test_what_encode_returns_is_checked(encode, words):
 def test_a_method_that_needs_alignment_is_refused_without_aligned_places(tmp_path, monkeypatch):
     _module(tmp_path, "aligned_only", CENTRED_PIXELS + "\ncentred_pixels.needs_alignment = True\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    (info,) = resolve_methods(("aligned_only:centred_pixels",), True, "synthetic")
-    assert info.needs_alignment and info.name == "centred_pixels"
+    cfg = parse_config(["methods=[aligned_only:centred_pixels]", "plugin.centred_pixels.record=x"])
+    (mine,) = resolve_methods(cfg, True, "synthetic", frozenset())
+    assert mine.method.needs_alignment and mine.name == "centred_pixels"
     with pytest.raises(UserError, match="needs_alignment.*data.source=vpr_bench.*train_source"):
-        resolve_methods(("aligned_only:centred_pixels",), False, "vpr_bench")
-    assert resolve_methods(("raw", "lda"), True, "synthetic") == (METHODS["raw"], METHODS["lda"])
+        resolve_methods(cfg, False, "vpr_bench", frozenset())
+    both = resolve_methods(parse_config(["methods=[raw,lda]"]), True, "synthetic", frozenset())
+    assert [r.name for r in both] == ["raw", "lda"]
 
 
 def test_adding_a_method_of_your_own_extends_a_logdir(tmp_path):
@@ -199,8 +202,10 @@ def test_adding_a_method_of_your_own_extends_a_logdir(tmp_path):
     logdir.mkdir()
     before = parse_config(["methods=[raw,a.b:first]", "plugin.first.alpha=1", f"logdir={logdir}"])
     (logdir / "config.yaml").write_text(config_yaml(before))
-    check_same_config(logdir, before)
+    check_same_config(logdir, before, settings_identities)
     added = ["methods=[raw,a.b:first,c.d:second]", "plugin.second.beta=2", f"logdir={logdir}"]
-    check_same_config(logdir, parse_config([*added, "plugin.first.alpha=1"]))  # accepted
+    check_same_config(logdir, parse_config([*added, "plugin.first.alpha=1"]), settings_identities)
     with pytest.raises(UserError, match=r"differs in plugin\.first"):
-        check_same_config(logdir, parse_config([*added, "plugin.first.alpha=2"]))
+        check_same_config(
+            logdir, parse_config([*added, "plugin.first.alpha=2"]), settings_identities
+        )

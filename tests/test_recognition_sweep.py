@@ -5,6 +5,7 @@ chooses, the same recall the sweep reports for the cell. (Resuming and restoring
 models: tests/test_recognition_training.py and the sweep's rerun tests.)"""
 
 import csv
+from pathlib import Path
 
 import pytest
 
@@ -64,15 +65,14 @@ def test_the_kept_model_and_epoch_are_validation_recall_s_choice(sweep):
         }
         assert all(len(c) == 3 for c in curves.values())  # epoch 0, then both epochs
         kept = max(curves, key=lambda v: max(curves[v]))  # the first on a tie: augmented
-        assert folders[method].endswith(f"{model}_{kept}")
+        assert folders[method].endswith(model)  # the kept model's state, saved
+        assert f"summer-fall {model}_{kept}: kept, the better on the validation" in proc.stdout
         # The recall that chose the epoch is the recall the sweep reports for the cell.
         assert row.val_recall_at_1 == pytest.approx(max(curves[kept]), abs=1e-6)
         line = f"summer-fall {model}_{kept}: input residual, {pca_k.removed_pcs} leading"
         assert line in proc.stdout  # k: PCA's validation-selected count
         for variant, curve in curves.items():  # each checkpoint: finished, and how it chose
-            meta = checkpoints.read_meta(
-                logdir.parent / "checkpoints" / "runs" / "summer-fall" / f"{model}_{variant}"
-            )
+            meta = checkpoints.read_meta(Path(folders[method]) / f"training_{variant}")
             assert meta["done"] and meta["selected_by"] == SELECT_RECALL
             assert meta["best_epoch"] == curve.index(max(curve))
             assert meta["best_score"] == pytest.approx(max(curve), abs=1e-6)

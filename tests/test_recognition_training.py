@@ -14,7 +14,13 @@ from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import objectives
 from vpr_jax.encoders.saved import load_encoder
-from vpr_jax.encoders.train import SELECT_RECALL, fit_autoencoder
+from vpr_jax.encoders.train import (
+    SELECT_RECALL,
+    NoLog,
+    TrainingData,
+    TrainOptions,
+    fit_autoencoder,
+)
 from vpr_jax.outputs.tb import TrainingRun
 
 
@@ -92,7 +98,11 @@ def test_training_never_moves_the_removal_and_the_saved_encoder_keeps_it(seasons
     spec = ae.FAESpec(hidden=8, standardise=True, removed=3)
     settings = TrainConfig(epochs=2, batch_size=32, optimizer="adamw", checkpoint_every_s=0)
     result = fit_autoencoder(
-        spec, train, val, jax.random.key(0), settings, checkpoint_dir=tmp_path / "m", fixed=fixed
+        spec,
+        TrainingData(train, val),
+        TrainOptions(
+            key=jax.random.key(0), settings=settings, checkpoint_dir=tmp_path / "m", fixed=fixed
+        ),
     )
     for name, value in fixed.items():  # adamw's weight decay would move any trained array
         np.testing.assert_array_equal(result.params[name], np.float32(value))
@@ -101,7 +111,11 @@ def test_training_never_moves_the_removal_and_the_saved_encoder_keeps_it(seasons
         encode(params, val[:5]), ae.make_encode(result.graphdef)(result.params, val[:5])
     )
     again = fit_autoencoder(
-        spec, train, val, jax.random.key(0), settings, checkpoint_dir=tmp_path / "m", fixed=fixed
+        spec,
+        TrainingData(train, val),
+        TrainOptions(
+            key=jax.random.key(0), settings=settings, checkpoint_dir=tmp_path / "m", fixed=fixed
+        ),
     )  # a finished model is restored, its removal with it
     assert again.restored
     for a, b in zip(jax.tree.leaves(again.params), jax.tree.leaves(result.params), strict=True):
@@ -129,12 +143,8 @@ def test_the_epoch_kept_is_the_best_validation_recall_not_the_least_loss(seasons
     try:
         result = fit_autoencoder(
             ae.FAESpec(hidden=16),
-            train,
-            val,
-            jax.random.key(0),
-            settings,
-            validate=validate,
-            log=log,
+            TrainingData(train, val),
+            TrainOptions(key=jax.random.key(0), settings=settings, validate=validate, log=log),
         )
     finally:
         log.close()
@@ -183,14 +193,15 @@ def test_a_contrastive_run_resumed_selects_as_the_uninterrupted_one(seasons, tmp
     def fit(folder, log=None):
         return fit_autoencoder(
             ae.FAESpec(hidden=16, standardise=True),
-            train,
-            val,
-            jax.random.key(1),
-            settings,
-            checkpoint_dir=tmp_path / folder,
-            objective="contrastive",
-            validate=validate,
-            log=log,
+            TrainingData(train, val),
+            TrainOptions(
+                key=jax.random.key(1),
+                settings=settings,
+                checkpoint_dir=tmp_path / folder,
+                objective="contrastive",
+                validate=validate,
+                log=log or NoLog(),
+            ),
         )
 
     whole = fit("whole")

@@ -172,7 +172,7 @@ def test_another_seed_gives_another_route_and_other_initial_weights(small_sweep,
     # The FAE's weights: (tiny FAEs can collapse to the same chance-level metrics).
     _, seed_0 = load_encoder(first.parent / "checkpoints" / "runs" / "summer-fall" / "fae")
     _, seed_1 = load_encoder(tmp_path / "checkpoints" / "runs" / "summer-fall" / "fae")
-    assert not np.allclose(seed_0["encoder"]["kernel"], seed_1["encoder"]["kernel"])
+    assert not np.allclose(seed_0.params["encoder"]["kernel"], seed_1.params["encoder"]["kernel"])
 
 
 HOLD_LOCK = (
@@ -215,7 +215,7 @@ def test_logdirs_of_one_name_cannot_train_into_the_same_checkpoint_folder(tmp_pa
         "fae.epochs=1",
         f"train.checkpoint_dir={checkpoints}",
     ]
-    model = checkpoints / "quick" / "summer-fall" / "fae"
+    model = checkpoints / "quick" / "summer-fall" / "fae" / "training"
     with started([sys.executable, "-c", HOLD_LOCK, str(model)], stdout=subprocess.PIPE) as holder:
         assert holder.stdout.readline().strip() == "held"
         proc = run_cli(*args, f"logdir={tmp_path / 'b' / 'quick'}")

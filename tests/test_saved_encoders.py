@@ -55,19 +55,21 @@ def test_the_description_says_what_was_fitted_and_chosen(small_sweep):
     logdir, _ = small_sweep
     with open(f"{_folder(logdir, 'summer-fall', 'pca')}/encoder.json") as f:
         pca = json.load(f)
-    assert pca["counts"] == [0, 5, 20] and pca["removed_pcs"] in (0, 5, 20)
+    assert pca["serves"] == {"removed_pcs": [0, 5, 20]} and pca["removed_pcs"] in (0, 5, 20)
+    assert pca["chosen"] == {"removed_pcs": pca["removed_pcs"]}
     by_count = pca["val_recall_at_1_by_count"]
     assert pca["val_recall_at_1"] == max(by_count.values())  # the validation's choice
     assert pca["run"] == f"summer-fall/pca_k{pca['removed_pcs']:03d}"
-    assert pca["preprocessing"]["patchnorm"] is None and pca["method"] == "pca"
-    assert pca["encode"] == "vpr_jax.encoders.saved:encode_suffix"
+    assert pca["preprocessing"]["patchnorm"] is None and pca["name"] == "pca"
+    assert pca["method"] == "vpr_jax.methods.pca:method" and pca["model"] == "pca"
     with open(f"{_folder(logdir, 'summer-fall', 'fae', 'cross_season')}/encoder.json") as f:
         fae = json.load(f)
-    assert (fae["encode"], fae["objective"], fae["removed_pcs"]) == (
-        "autoencoder",
+    assert (fae["method"], fae["objective"], fae["removed_pcs"]) == (
+        "vpr_jax.methods.fae:method",
         "cross_season",
         0,
     )
+    assert fae["settings"]["objective"] == "cross_season" and fae["serves"] == {}
 
 
 @pytest.fixture(scope="module")
@@ -109,7 +111,7 @@ def test_folders_that_hold_no_whole_encoder_are_one_clear_error(pca_encoder, tmp
     with pytest.raises(UserError, match="holds no encoder.*encoder.json is missing"):
         load_encoder(tmp_path)
     damaged = shutil.copytree(pca_encoder, tmp_path / "damaged")
-    for path in (damaged / "arrays").rglob("*"):
+    for path in (damaged / "state" / "arrays").rglob("*"):
         if path.is_file() and path.stat().st_size > 1000:
             path.write_bytes(path.read_bytes()[:100])  # cut short, as by a full disk
     with pytest.raises(UserError, match="damaged or incomplete fitted state.*rerun the sweep"):
@@ -117,7 +119,7 @@ def test_folders_that_hold_no_whole_encoder_are_one_clear_error(pca_encoder, tmp
     newer = shutil.copytree(pca_encoder, tmp_path / "newer")
     description = json.loads((newer / "encoder.json").read_text())
     (newer / "encoder.json").write_text(json.dumps({**description, "format": 99}))
-    with pytest.raises(UserError, match="format 99, this suite reads 1: update vpr_jax"):
+    with pytest.raises(UserError, match="format 99, this suite reads 2: update vpr_jax"):
         load_encoder(newer)
 
 
@@ -126,7 +128,7 @@ def test_the_listing_command_names_every_encoder_and_refuses_other_folders(small
     proc = run_process([sys.executable, "-m", "experiments.encoders", str(logdir)])
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.strip().splitlines()
-    assert lines[0].split() == ["pair", "method", "setting", "val", "recall@1", "folder"]
+    assert lines[0].split() == ["pair", "method", "setting", "val", "recall@1", "chosen", "folder"]
     assert len(lines) == 1 + len(_listing(logdir)) and "(missing)" not in proc.stdout
     assert any("ica" in line and "k=20" in line for line in lines)
     refused = run_process([sys.executable, "-m", "experiments.encoders", str(tmp_path)])

@@ -115,8 +115,10 @@ def test_tensorboard_reads_back_scalars_pr_curves_images_hparams(small_sweep):
         "season_pair",
         "method",
         "objective",
+        "setting",
         "removed_pcs",
         "ds",
+        "seed",
     }
     assert "metrics/recall_at_1" in {m.name.tag for m in experiment.metric_infos}
 
@@ -138,7 +140,7 @@ def test_autoencoder_training_is_logged_and_checkpointed(small_sweep):
             shown = ea.Images("reconstructions/validation")[-1]
             rows = 5 if method.endswith("cross_season") else 2
             assert (shown.height, shown.width) == (rows * 33 - 1, 6 * 65 - 1)
-            folder = logdir.parent / "checkpoints" / logdir.name / pair / method
+            folder = logdir.parent / "checkpoints" / logdir.name / pair / method / "training"
             saved = sorted(p.name for p in folder.iterdir() if p.name.isdigit())
             assert saved[-1] == "2" and set(saved) <= {"1", "2"}  # the last epoch, always
     assert proc.stdout.count("validation loss") == 3 * 4 * 3  # per model: the start, 2 epochs
@@ -261,7 +263,7 @@ def test_each_pair_has_one_summary_run_of_its_selected_cells(small_sweep):
     the 40 runs TensorBoard ticks by default), whose tags are every method's selected cell."""
     from tensorboard.backend.event_processing.plugin_event_multiplexer import EventMultiplexer
 
-    from vpr_jax.methods import model_name
+    from vpr_jax.method_table import model_name
 
     logdir, _ = small_sweep
     rows = read_results(logdir / "results.csv")

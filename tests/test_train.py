@@ -12,7 +12,7 @@ from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import checkpoints
 from vpr_jax.encoders.saved import load_encoder
-from vpr_jax.encoders.train import fit_autoencoder, make_eval_loss
+from vpr_jax.encoders.train import TrainingData, TrainOptions, fit_autoencoder, make_eval_loss
 from vpr_jax.errors import UserError
 from vpr_jax.outputs.tb import TrainingRun
 
@@ -73,7 +73,9 @@ def test_validation_loss_falls(data, spec):
     graphdef, initial = ae.build(spec, jax.random.fold_in(jax.random.key(0), 0))
     before = make_eval_loss(graphdef, 32)(initial, val)
     settings = TrainConfig(epochs=5, batch_size=16, learning_rate=3e-3, patience=10)
-    result = fit_autoencoder(spec, train, val, jax.random.key(0), settings)
+    result = fit_autoencoder(
+        spec, TrainingData(train, val), TrainOptions(key=jax.random.key(0), settings=settings)
+    )
     assert result.best_val_loss < 0.8 * before
     assert result.epochs == 5 and result.steps == 5 * (len(train) // 16)
     assert not result.restored and result.resumed_epoch == 0
@@ -82,7 +84,9 @@ def test_validation_loss_falls(data, spec):
 def test_checkpoint_round_trip_gives_identical_codes(data, tmp_path):
     train, val = data
     result = fit_autoencoder(
-        SPEC, train, val, jax.random.key(1), SETTINGS, checkpoint_dir=tmp_path / "fae"
+        SPEC,
+        TrainingData(train, val),
+        TrainOptions(key=jax.random.key(1), settings=SETTINGS, checkpoint_dir=tmp_path / "fae"),
     )
     encode, params = load_encoder(tmp_path / "fae")
     assert _equal(params, result.params)
@@ -91,7 +95,9 @@ def test_checkpoint_round_trip_gives_identical_codes(data, tmp_path):
     )
     # Run again: the finished model is restored, not retrained.
     again = fit_autoencoder(
-        SPEC, train, val, jax.random.key(1), SETTINGS, checkpoint_dir=tmp_path / "fae"
+        SPEC,
+        TrainingData(train, val),
+        TrainOptions(key=jax.random.key(1), settings=SETTINGS, checkpoint_dir=tmp_path / "fae"),
     )
     assert again.restored and _equal(again.params, result.params)
     assert again.epochs == result.epochs and again.train_seconds == pytest.approx(
@@ -104,19 +110,31 @@ def test_an_interrupted_run_resumes_at_its_saved_epoch_and_ends_as_an_uninterrup
 ):
     train, val = data
     key = jax.random.key(2)
-    whole = fit_autoencoder(SPEC, train, val, key, SETTINGS, checkpoint_dir=tmp_path / "whole")
+    whole = fit_autoencoder(
+        SPEC,
+        TrainingData(train, val),
+        TrainOptions(key=key, settings=SETTINGS, checkpoint_dir=tmp_path / "whole"),
+    )
     steps_per_epoch = len(train) // 32
     folder, tb_dir = tmp_path / "cut", tmp_path / "tb"
     cut = StopAt(2 * steps_per_epoch + 3, TrainingRun(tb_dir, print))  # mid epoch 3
     with pytest.raises(KeyboardInterrupt):
         try:
-            fit_autoencoder(SPEC, train, val, key, SETTINGS, checkpoint_dir=folder, log=cut)
+            fit_autoencoder(
+                SPEC,
+                TrainingData(train, val),
+                TrainOptions(key=key, settings=SETTINGS, checkpoint_dir=folder, log=cut),
+            )
         finally:
             cut.close()  # as the sweep does: what was logged reaches the disk
     assert _train_steps(tb_dir)[-1] == 2 * steps_per_epoch + 3
     log = TrainingRun(tb_dir, print)
     try:
-        resumed = fit_autoencoder(SPEC, train, val, key, SETTINGS, checkpoint_dir=folder, log=log)
+        resumed = fit_autoencoder(
+            SPEC,
+            TrainingData(train, val),
+            TrainOptions(key=key, settings=SETTINGS, checkpoint_dir=folder, log=log),
+        )
     finally:
         log.close()
     assert resumed.resumed_epoch == 2 and resumed.steps == whole.steps
@@ -134,11 +152,23 @@ def test_checkpoints_wait_checkpoint_every_s_but_the_last_epoch_is_always_saved(
     folder = tmp_path / "rare"
     cut = StopAt(2 * (len(train) // 32) + 3)  # in epoch 3: epochs 1 and 2 were not due
     with pytest.raises(KeyboardInterrupt):
-        fit_autoencoder(SPEC, train, val, jax.random.key(5), rare, checkpoint_dir=folder, log=cut)
+        fit_autoencoder(
+            SPEC,
+            TrainingData(train, val),
+            TrainOptions(key=jax.random.key(5), settings=rare, checkpoint_dir=folder, log=cut),
+        )
     assert not checkpoints.has_checkpoint(folder)
-    result = fit_autoencoder(SPEC, train, val, jax.random.key(5), rare, checkpoint_dir=folder)
+    result = fit_autoencoder(
+        SPEC,
+        TrainingData(train, val),
+        TrainOptions(key=jax.random.key(5), settings=rare, checkpoint_dir=folder),
+    )
     assert result.resumed_epoch == 0 and checkpoints.read_meta(folder)["epoch"] == 3
-    again = fit_autoencoder(SPEC, train, val, jax.random.key(5), rare, checkpoint_dir=folder)
+    again = fit_autoencoder(
+        SPEC,
+        TrainingData(train, val),
+        TrainOptions(key=jax.random.key(5), settings=rare, checkpoint_dir=folder),
+    )
     assert again.restored and _equal(again.params, result.params)
 
 
@@ -146,7 +176,9 @@ def test_early_stopping_keeps_the_best_parameters(data):
     train, val = data
     # A learning rate far below float32 resolution: no epoch beats the starting weights.
     frozen = TrainConfig(epochs=10, batch_size=32, learning_rate=1e-12, patience=2)
-    result = fit_autoencoder(SPEC, train, val, jax.random.key(3), frozen)
+    result = fit_autoencoder(
+        SPEC, TrainingData(train, val), TrainOptions(key=jax.random.key(3), settings=frozen)
+    )
     assert result.stopped_early and result.epochs == 2 and result.best_epoch == 0
     graphdef = result.graphdef
     assert make_eval_loss(graphdef, 32)(result.params, val) == result.best_val_loss
@@ -157,21 +189,27 @@ def test_a_checkpoint_of_other_data_or_settings_is_refused(data, tmp_path):
     one = TrainConfig(epochs=1, batch_size=32)
     folder = tmp_path / "m"
     fit_autoencoder(
-        SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder, identity={"seed": 4}
+        SPEC,
+        TrainingData(train, val),
+        TrainOptions(
+            key=jax.random.key(4), settings=one, checkpoint_dir=folder, identity={"seed": 4}
+        ),
     )
     with pytest.raises(UserError, match="other data or settings"):
         fit_autoencoder(
-            SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder, identity={"seed": 5}
+            SPEC,
+            TrainingData(train, val),
+            TrainOptions(
+                key=jax.random.key(4), settings=one, checkpoint_dir=folder, identity={"seed": 5}
+            ),
         )
     with pytest.raises(UserError, match="other data or settings"):
         fit_autoencoder(
             ae.FAESpec(hidden=8),
-            train,
-            val,
-            jax.random.key(4),
-            one,
-            checkpoint_dir=folder,
-            identity={"seed": 4},
+            TrainingData(train, val),
+            TrainOptions(
+                key=jax.random.key(4), settings=one, checkpoint_dir=folder, identity={"seed": 4}
+            ),
         )
 
 
@@ -181,7 +219,11 @@ def test_a_checkpoint_of_another_format_is_refused_and_left_alone(data, tmp_path
     train, val = data
     one = TrainConfig(epochs=1, batch_size=32)
     folder = tmp_path / "other_format"
-    fit_autoencoder(SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder)
+    fit_autoencoder(
+        SPEC,
+        TrainingData(train, val),
+        TrainOptions(key=jax.random.key(4), settings=one, checkpoint_dir=folder),
+    )
     for meta_file in folder.glob("*/meta/metadata"):  # as another version would write it
         meta = json.loads(meta_file.read_text())
         assert meta["format"] == checkpoints.FORMAT
@@ -189,7 +231,11 @@ def test_a_checkpoint_of_another_format_is_refused_and_left_alone(data, tmp_path
     before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
     for attempt in (
         lambda: load_encoder(folder),
-        lambda: fit_autoencoder(SPEC, train, val, jax.random.key(4), one, checkpoint_dir=folder),
+        lambda: fit_autoencoder(
+            SPEC,
+            TrainingData(train, val),
+            TrainOptions(key=jax.random.key(4), settings=one, checkpoint_dir=folder),
+        ),
     ):
         with pytest.raises(UserError, match="another format .*use a new folder"):
             attempt()

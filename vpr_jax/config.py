@@ -20,22 +20,23 @@ from vpr_jax.errors import UserError
 from vpr_jax.shapes import IMAGE_SHAPE, MAX_PIXELS
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
-ROUTE_SOURCES = ("synthetic", "nordland_images", "nordland_videos", "folders")  # aligned
-# Benchmarks whose database and queries are not frame-aligned (ground truth as sets).
-BENCHMARK_SOURCES = ("vpr_bench", "positions", "nordland_star")
+# The names the config accepts, each list written once here and read by the code that acts
+# on it (the Nordland readers, the benchmarks, the optimizers, the PR conventions).
+NORDLAND_SOURCES = ("nordland_images", "nordland_videos", "folders")
+ROUTE_SOURCES = ("synthetic", *NORDLAND_SOURCES)  # frame-aligned seasons
+# Benchmarks whose database and queries are not frame-aligned (ground truth as sets), with
+# the names of their one pair: (database, queries).
+BENCHMARK_PAIRS = {
+    "vpr_bench": ("ref", "query"),
+    "positions": ("database", "queries"),
+    "nordland_star": ("winter", "summer"),
+}
+BENCHMARK_SOURCES = tuple(BENCHMARK_PAIRS)
 SOURCES = (*ROUTE_SOURCES, *BENCHMARK_SOURCES)
-ICA_FUNS = ("logcosh", "exp", "cube")
-# What the auto-encoders learn (vpr_jax.encoders.objectives, which config does not import);
-# the paired ones learn from aligned training places; the default axis is the first two.
-OBJECTIVES = ("reconstruct", "cross_season", "contrastive")
-PAIRED_OBJECTIVES = ("cross_season", "contrastive")
-DEFAULT_OBJECTIVES = ("reconstruct", "cross_season")
-AE_INPUTS = ("pixels", "residual")  # what the auto-encoders see: fae.input, cae.input
-FAE_INITS = ("random", "pca", "whitened_pca")  # how the FAE's weights start: fae.init
 SOURCE_FREE_PRESETS = ("real",)  # presets that set no data keys: their logdirs name the source
-OPTIMIZERS = ("adam", "adamw", "sgd")
+OPTIMIZERS = ("adam", "adamw", "sgd")  # optax's functions of these names
 PREPROCESSES = ("none", "patchnorm")
-# How PR recall counts (vpr_jax.evaluation.metrics, which config does not import).
+# How PR recall counts (docs/metrics.md, "PR conventions"; vpr_jax.evaluation.metrics).
 PR_CONVENTIONS = ("vpr_bench", "has_match", "vpr_tutorial")
 # train.* keys that say where and how often models are saved, not what is trained.
 TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
@@ -44,32 +45,6 @@ TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
 def _check(ok: bool, message: str) -> None:
     if not ok:
         raise UserError(message)
-
-
-def _as_tuple(obj: Any, name: str) -> None:
-    # Lists arrive from OmegaConf as lists; freeze them so configs are hashable values.
-    object.__setattr__(obj, name, tuple(getattr(obj, name)))
-
-
-def _check_input(obj: Any, group: str) -> None:
-    _check(
-        obj.input in AE_INPUTS,
-        f"{group}.input={obj.input} is unknown: use {' or '.join(AE_INPUTS)}",
-    )
-
-
-def _check_objectives(obj: Any, group: str) -> None:
-    _as_tuple(obj, "objective")
-    chosen = list(obj.objective)
-    _check(len(chosen) > 0, f"{group}.objective is empty: e.g. {group}.objective=cross_season")
-    unknown = [o for o in chosen if o not in OBJECTIVES]
-    _check(
-        not unknown,
-        f"{group}.objective={chosen} names unknown {unknown}: choose from {', '.join(OBJECTIVES)}",
-    )
-    _check(
-        len(set(chosen)) == len(chosen), f"{group}.objective={chosen} repeats one: name each once"
-    )
 
 
 @dataclass(frozen=True)
@@ -87,8 +62,8 @@ class DataConfig:
     # train_root with data.seasons (two seasons: the pair to learn from).
     train_source: str | None = None
     train_root: str | None = None
-    frame_range: list[int] | None = None  # [first, last] frame ids kept (Nordland sources)
-    seasons: list[str] = field(default_factory=lambda: ["spring", "summer", "fall"])
+    frame_range: tuple[int, ...] | None = None  # [first, last] frame ids kept (Nordland)
+    seasons: tuple[str, ...] = ("spring", "summer", "fall")
     n_frames: int = 3600  # synthetic only: route length in frames per season
     frame_step: int = 1  # keep every step-th frame (10 on the full route gives ~3,577)
     frame_list: str | None = None  # Nordland sources: file of frame names / ranges to keep
@@ -100,7 +75,6 @@ class DataConfig:
     max_pixels: int = MAX_PIXELS  # larger images (read from their headers) are refused
 
     def __post_init__(self):
-        _as_tuple(self, "seasons")
         _check(
             self.source in SOURCES,
             f"data.source={self.source} is unknown: use one of {', '.join(SOURCES)}",
@@ -137,7 +111,6 @@ class DataConfig:
     def _check_frames(self) -> None:
         """frame_range and frame_list: Nordland sources only, a range is [first, last]."""
         if self.frame_range is not None:
-            _as_tuple(self, "frame_range")
             _check(
                 len(self.frame_range) == 2 and self.frame_range[0] <= self.frame_range[1],
                 f"data.frame_range={list(self.frame_range)} is not [first, last]: e.g. "
@@ -216,170 +189,6 @@ class SplitConfig:
         _check(
             self.database in ("test", "all"),
             f"split.database={self.database} is unknown: use test or all",
-        )
-
-
-@dataclass(frozen=True)
-class PCAConfig:
-    solver: str = "auto"  # auto | covariance | gram | subspace (vpr_jax.encoders.pca)
-    output: str = "coefficients"  # coefficients | pixels (the seed's back-projection)
-
-    def __post_init__(self):
-        _check(
-            self.solver in ("auto", "covariance", "gram", "subspace"),
-            f"pca.solver={self.solver} is unknown: use auto, covariance, gram or subspace",
-        )
-        _check(
-            self.output in ("coefficients", "pixels"),
-            f"pca.output={self.output} is unknown: use coefficients or pixels",
-        )
-
-
-@dataclass(frozen=True)
-class ICAConfig:
-    """Symmetric FastICA after whitening with the pair's PCA fit (and removing k PCs)."""
-
-    n_components: int | str = 128  # independent components; "all": every one the data allow
-    fun: str = "logcosh"  # logcosh | exp | cube: the contrast G (scikit-learn's names)
-    alpha: float = 1.0  # logcosh only: G(u) = log cosh(alpha u) / alpha, alpha in [1, 2]
-    max_iter: int = 200  # fixed-point updates at most
-    tol: float = 1e-4  # stop when max |abs(diag(W_new W^T)) - 1| < tol
-    n_init: int = 1  # random initialisations run at once; the best negentropy is kept
-
-    def __post_init__(self):
-        n = self.n_components
-        _check(
-            n == "all" or (isinstance(n, int) and n >= 1),
-            f"ica.n_components={n} is not a count: use a number >= 1 or all",
-        )
-        _check(self.fun in ICA_FUNS, f"ica.fun={self.fun} is unknown: use {', '.join(ICA_FUNS)}")
-        _check(
-            self.fun != "logcosh" or 1.0 <= self.alpha <= 2.0,
-            f"ica.alpha={self.alpha} must lie in [1, 2]",
-        )
-        _check(self.max_iter >= 1, f"ica.max_iter={self.max_iter} must be >= 1")
-        _check(self.tol > 0, f"ica.tol={self.tol} must be > 0")
-        _check(self.n_init >= 1, f"ica.n_init={self.n_init} must be >= 1")
-
-
-@dataclass(frozen=True)
-class LDAConfig:
-    """Within-place whitening inside the leading principal components (``vpr_jax.encoders.lda``)."""
-
-    n_components: int = 200  # leading principal components of the pair's PCA fit whitened in
-    shrinkage: float = 0.1  # towards trace/m x identity: 0 plain whitening, 1 PCA coordinates
-
-    def __post_init__(self):
-        _check(self.n_components >= 1, f"lda.n_components={self.n_components} must be >= 1")
-        _check(
-            0 <= self.shrinkage <= 1,
-            f"lda.shrinkage={self.shrinkage} is not in [0, 1]: use e.g. 0.1 (0: plain whitening)",
-        )
-
-
-@dataclass(frozen=True)
-class FAEConfig:
-    """One-hidden-layer auto-encoder: 2,048 pixels -> hidden (ReLU) -> 2,048 (sigmoid)."""
-
-    hidden: int = 256  # code length: the place descriptor
-    epochs: int | None = None  # overrides train.epochs for the FAE (it trains ~100x faster)
-    # One cell per objective: reconstruct (the seed's), cross_season and/or contrastive
-    # (see vpr_jax.encoders.objectives); one value or a list.
-    objective: list[str] = field(default_factory=lambda: list(DEFAULT_OBJECTIVES))
-    # pixels: the images; residual: the images less the pair's leading k principal
-    # components, k chosen for PCA on the validation places (the code cannot be spent on
-    # the condition PCA change removal throws away).
-    input: str = "pixels"
-    # random: drawn weights; pca: the linear start, the hidden layer at the PCA solution of
-    # its own inputs for hidden // 2 components, each unit beside its negative
-    # (vpr_jax.encoders.autoencoders.pca_start): training keeps only what beats it;
-    # whitened_pca: the same with every component scaled to unit variance.
-    init: str = "random"
-    # Subtracted from every pixel before the hidden layer; 0 is the seed's layer, on which
-    # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
-    input_centre: float = 0.5
-    standardise: bool = True  # each image to zero mean, std 1/4 instead (input_centre unused)
-
-    def __post_init__(self):
-        _check_objectives(self, "fae")
-        _check_input(self, "fae")
-        _check(
-            self.init in FAE_INITS, f"fae.init={self.init} is unknown: use {', '.join(FAE_INITS)}"
-        )
-        _check(self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1")
-        _check(
-            0 <= self.input_centre <= 1,
-            f"fae.input_centre={self.input_centre} is not a "
-            "grey level in [0, 1]: use 0.5 (mid-grey) or 0 (the seed's layer)",
-        )
-        _check(self.epochs is None or self.epochs >= 1, f"fae.epochs={self.epochs} must be >= 1")
-
-
-# Named CAE architectures (``cae.model``); the keys of CAEConfig override their parts.
-# fast: 2x2 pixel blocks to channels (no convolution at full resolution), two 3x3 levels of
-# 24 and 48 channels, a 4x8x32 = 1,024-value code: about 4 MFLOP an image to encode.
-# calc: the CAE sized like CALC's encoder that the suite began with (5x5x64, 4x4x128, a
-# 8x16x8 = 1,024-value code, about 130 MFLOP), ten times slower to train on a CPU.
-CAE_MODELS = {
-    "fast": {
-        "channels": (24, 48),
-        "kernel_sizes": (3, 3),
-        "code_channels": 32,
-        "space_to_depth": 2,
-    },
-    "calc": {
-        "channels": (64, 128),
-        "kernel_sizes": (5, 4),
-        "code_channels": 8,
-        "space_to_depth": 1,
-    },
-}
-
-
-@dataclass(frozen=True)
-class CAEConfig:
-    """Convolutional auto-encoder: optionally f x f pixel blocks to channels, then per level
-    a conv (ReLU) + 2x2 max-pool, a 3x3 conv to the code; a mirrored decoder."""
-
-    model: str = "fast"  # fast | calc: a named architecture (CAE_MODELS); keys below override
-    channels: list[int] | None = None  # widths, one per level
-    kernel_sizes: list[int] | None = None  # one per level
-    code_channels: int | None = None  # code = (32 / 2^levels / f) x (64 / ...) x this values
-    space_to_depth: int | None = None  # f: f x f pixel blocks become channels first (1: none)
-    standardise: bool = True  # each image to zero mean, std 1/4 before the encoder
-    epochs: int | None = None  # overrides train.epochs for the CAE
-    objective: list[str] = field(default_factory=lambda: list(DEFAULT_OBJECTIVES))  # as fae's
-    input: str = "pixels"  # pixels | residual: as fae.input
-
-    def __post_init__(self):
-        _check_objectives(self, "cae")
-        _check_input(self, "cae")
-        _check(
-            self.model in CAE_MODELS,
-            f"cae.model={self.model} is unknown: use {' or '.join(CAE_MODELS)}",
-        )
-        for key, value in CAE_MODELS[self.model].items():  # the named model fills the gaps
-            if getattr(self, key) is None:
-                object.__setattr__(self, key, value)
-        _check(self.epochs is None or self.epochs >= 1, f"cae.epochs={self.epochs} must be >= 1")
-        _as_tuple(self, "channels")
-        _as_tuple(self, "kernel_sizes")
-        _check(
-            len(self.channels) == len(self.kernel_sizes) >= 1,
-            f"cae.channels={list(self.channels)} and cae.kernel_sizes="
-            f"{list(self.kernel_sizes)} need one entry per level, at least one level",
-        )
-        _check(
-            min(self.channels) >= 1 and min(self.kernel_sizes) >= 1 and self.code_channels >= 1,
-            "cae.channels, cae.kernel_sizes and cae.code_channels must be >= 1",
-        )
-        h, w = IMAGE_SHAPE
-        down = 2 ** len(self.channels) * self.space_to_depth
-        _check(
-            self.space_to_depth >= 1 and h % down == 0 and w % down == 0,
-            f"cae: {len(self.channels)} levels after {self.space_to_depth}x"
-            f"{self.space_to_depth} blocks do not tile {h}x{w} images: use fewer levels "
-            "or cae.space_to_depth=1",
         )
 
 
@@ -497,7 +306,7 @@ class SequenceConfig:
     descriptors; ``ds`` is a sweep axis, ds = 1 being single-image matching."""
 
     enabled: bool = False
-    ds: list[int] = field(default_factory=lambda: [1, 10])  # sequence lengths in frames
+    ds: tuple[int, ...] = (1, 10)  # sequence lengths in frames
     contrast_window: int = 10  # R: database frames per local contrast window; 0: none
     v_min: float = 0.8  # trajectory velocities: database frames per query frame
     v_max: float = 1.2
@@ -505,14 +314,12 @@ class SequenceConfig:
     uniqueness_window: int = 10  # the runner-up is the best match beyond +-window/2 frames
 
     def __post_init__(self):
-        _as_tuple(self, "ds")
         _check(len(self.ds) > 0, "sequence.ds is empty: e.g. sequence.ds=[1,10]")
         _check(
             min(self.ds) >= 1,
             f"sequence.ds={list(self.ds)} has lengths below 1: a "
             "sequence holds at least one image (ds=1 is single-image matching)",
         )
-        object.__setattr__(self, "ds", tuple(sorted(set(self.ds))))
         _check(
             self.contrast_window >= 0,
             f"sequence.contrast_window={self.contrast_window} "
@@ -547,26 +354,24 @@ class TensorBoardConfig:
 
 
 @dataclass(frozen=True)
-class SweepConfig:
-    """``python -m experiments.sweep [key=value ...]``; docs/config.md lists every key."""
+class SweepKnobs:
+    """The sweep's own knobs; ``SweepConfig`` adds each built-in method's settings."""
 
-    preset: str = "quick"  # quick | paper: a file under experiments/configs/
+    preset: str = "quick"  # quick | paper | ...: a file under experiments/configs/
     season_pairs: str = "all"  # all, or db-query pairs: summer-fall,spring-fall
     # built-in names (vpr_jax.method_table) and your own as module:name
-    methods: list[str] = field(default_factory=lambda: list(method_table.NAMES))
-    removed_pcs: list[int] = field(default_factory=lambda: [0, 5, 10, 20, 50, 100])
+    methods: tuple[str, ...] = method_table.NAMES
+    removed_pcs: tuple[int, ...] = (0, 5, 10, 20, 50, 100)
     tolerance: int = 2  # a match is correct when |query frame - db frame| <= tolerance
     pr_convention: str = "vpr_bench"  # vpr_bench | has_match | vpr_tutorial: PR recall
     preprocess: str = "none"  # none | patchnorm: applied to every image before any method
-    seed: int = 0  # synthetic route and every random initialisation
+    seed: int = 0  # the built-in route, the split, the bootstrap, and the fits' seed
+    # Fits of the methods that draw random numbers (ica, fae, cae, a user's), once per seed;
+    # the data never change with them. None: one fit, of ``seed``.
+    seeds: tuple[int, ...] | None = None
     logdir: str | None = None  # default runs/<preset> (preset=real: runs/real_<data.source>)
     data: DataConfig = field(default_factory=DataConfig)
     split: SplitConfig = field(default_factory=SplitConfig)
-    pca: PCAConfig = field(default_factory=PCAConfig)
-    ica: ICAConfig = field(default_factory=ICAConfig)
-    lda: LDAConfig = field(default_factory=LDAConfig)
-    fae: FAEConfig = field(default_factory=FAEConfig)
-    cae: CAEConfig = field(default_factory=CAEConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     patchnorm: PatchNormConfig = field(default_factory=PatchNormConfig)
@@ -581,13 +386,7 @@ class SweepConfig:
     precomputed: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
-        _as_tuple(self, "methods")
-        _as_tuple(self, "removed_pcs")
-        if self.logdir is None:  # a preset for any source: runs/real_folders, ...
-            source = f"_{self.data.source}" if self.preset in SOURCE_FREE_PRESETS else ""
-            object.__setattr__(self, "logdir", f"runs/{self.preset}{source}")
-        _check(len(self.methods) > 0, "methods is empty: e.g. methods=[raw,pca]")
-        problem = method_table.check_methods(self.methods, OBJECTIVES)
+        problem = method_table.check_methods(self.methods)
         _check(problem is None, problem or "")
         plugins = [method_table.plugin_name(m) for m in self.methods if method_table.is_plugin(m)]
         for name in self.plugin:
@@ -603,7 +402,6 @@ class SweepConfig:
             f"removed_pcs={list(self.removed_pcs)} has negative counts {negative}: use counts >= 0",
         )
         _check(len(self.removed_pcs) > 0, "removed_pcs is empty: e.g. removed_pcs=[0,50]")
-        object.__setattr__(self, "removed_pcs", tuple(sorted(set(self.removed_pcs))))
         _check(self.tolerance >= 0, f"tolerance={self.tolerance} must be >= 0")
         _check(
             self.pr_convention in PR_CONVENTIONS,
@@ -614,20 +412,25 @@ class SweepConfig:
             self.preprocess in PREPROCESSES,
             f"preprocess={self.preprocess} is unknown: use one of {', '.join(PREPROCESSES)}",
         )
+        seeds = self.seeds or ()
+        _check(
+            self.seeds is None or (len(seeds) > 0 and len(set(seeds)) == len(seeds)),
+            f"seeds={list(seeds)} is empty or repeats a seed: name each once, e.g. seeds=[0,1,2]",
+        )
 
     def _check_precomputed(self) -> None:
-        """``precomputed.*`` as {name: {"database": absolute path, "queries": ...}}; the
-        ``precomputed`` entry of ``methods`` (optional) needs a set and is dropped."""
+        """``precomputed.*`` names sets only on a benchmark; ``methods=[precomputed]`` (the
+        entry that stands for them) needs a set."""
         sets = precomputed_sets(self.precomputed)
-        asked = method_table.PRECOMPUTED.name in self.methods
+        asked = method_table.PRECOMPUTED in self.methods
         _check(
             bool(sets) or not asked,
             "methods names precomputed but no descriptors are given: set "
             "precomputed.database=PATH and precomputed.queries=PATH (.npy files)",
         )
-        methods = tuple(m for m in self.methods if m != method_table.PRECOMPUTED.name)
+        methods = tuple(m for m in self.methods if m != method_table.PRECOMPUTED)
         _check(bool(methods) or bool(sets), "methods is empty: e.g. methods=[raw,pca]")
-        problem = method_table.check_precomputed(tuple(sets), methods, OBJECTIVES)
+        problem = method_table.check_precomputed(tuple(sets), methods)
         _check(problem is None, problem or "")
         _check(
             not sets or self.data.source in BENCHMARK_SOURCES,
@@ -636,25 +439,33 @@ class SweepConfig:
             "route: arrange its frames as a vpr_bench folder (ref/, query/, "
             "ground_truth_new.npy) to score outside descriptors on them",
         )
-        object.__setattr__(self, "precomputed", sets)
-        object.__setattr__(self, "methods", methods)
 
     @property
     def sequence_lengths(self) -> tuple[int, ...]:
         """The ds axis of the sweep: (1,) unless sequence matching is enabled."""
         return self.sequence.ds if self.sequence.enabled else (1,)
 
+    @property
+    def fit_seeds(self) -> tuple[int, ...]:
+        """The seeds a method that draws random numbers is fitted with."""
+        return self.seeds or (self.seed,)
 
-_LIST_KEYS = (
-    "methods",
-    "removed_pcs",
-    "data.seasons",
-    "cae.channels",
-    "cae.kernel_sizes",
-    "sequence.ds",
-    "fae.objective",
-    "cae.objective",
+
+# Each built-in method's settings, ``<name>.<key>=<value>``: checked by the method's own
+# ``Settings`` (``experiments.resolve``); a list given for one is a sweep axis.
+SweepConfig = dataclasses.make_dataclass(
+    "SweepConfig",
+    [(m.name, dict[str, Any], field(default_factory=dict)) for m in method_table.BUILTIN],
+    bases=(SweepKnobs,),
+    frozen=True,
 )
+SweepConfig.__doc__ = """``python -m experiments.sweep [key=value ...]``: the sweep's own
+knobs (``SweepKnobs``) and, under each built-in method's name, its settings as given
+(docs/config.md lists every key)."""
+
+
+# Sweep knobs that take a list; written without brackets (methods=raw,pca) they are one.
+_LIST_KEYS = ("methods", "removed_pcs", "seeds", "data.seasons", "sequence.ds")
 
 
 def _normalise_cli(argv: list[str]) -> list[str]:
@@ -703,40 +514,67 @@ def given_keys(argv: list[str]) -> frozenset[str]:
     return frozenset(arg.partition("=")[0] for arg in argv)
 
 
+def asked_keys(argv: list[str]) -> frozenset[str]:
+    """What the user asked for by name: the keys of the command line and of its preset
+    file, unless that preset sets no data keys (``SOURCE_FREE_PRESETS``: it asks for nothing
+    a source cannot serve). What learns from aligned places is refused on data without them
+    when asked for, and left out quietly otherwise."""
+    given = given_keys(argv)
+    preset = dict(a.partition("=")[::2] for a in argv).get("preset", SweepKnobs.preset)
+    if preset in SOURCE_FREE_PRESETS or not (PRESET_DIR / f"{preset}.yaml").is_file():
+        return given
+    return given | _dotted(OmegaConf.to_container(OmegaConf.load(PRESET_DIR / f"{preset}.yaml")))
+
+
+def _dotted(tree: dict, prefix: str = "") -> frozenset[str]:
+    keys = set()
+    for key, value in tree.items():
+        keys.add(f"{prefix}{key}")
+        if isinstance(value, dict):
+            keys |= _dotted(value, f"{prefix}{key}.")
+    return frozenset(keys)
+
+
 def _first_line(err: OmegaConfBaseException) -> str:
     lines = str(err).splitlines()
     key = next((ln.split(":", 1)[1].strip() for ln in lines if "full_key:" in ln), "")
     return f"{lines[0]} (key {key})" if key else lines[0]
 
 
+def _normalised(cfg: SweepConfig) -> SweepConfig:
+    """The config as the sweep reads it, made where OmegaConf hands it over: counts sorted
+    and each once, outside sets by name with absolute paths, ``methods`` without the
+    ``precomputed`` entry (it stands for the sets), the default logdir named."""
+    source = f"_{cfg.data.source}" if cfg.preset in SOURCE_FREE_PRESETS else ""
+    return dataclasses.replace(
+        cfg,
+        removed_pcs=tuple(sorted(set(cfg.removed_pcs))),
+        sequence=dataclasses.replace(cfg.sequence, ds=tuple(sorted(set(cfg.sequence.ds)))),
+        precomputed=precomputed_sets(cfg.precomputed),
+        methods=tuple(m for m in cfg.methods if m != method_table.PRECOMPUTED),
+        logdir=cfg.logdir or f"runs/{cfg.preset}{source}",
+    )
+
+
 def parse_config(argv: list[str]) -> SweepConfig:
-    """Build the typed config from ``key=value`` arguments, defaults and the preset file."""
+    """Build the typed config from ``key=value`` arguments, defaults and the preset file.
+    Each method's settings stay as given until the plan checks them with the method's own
+    ``Settings`` (``experiments.resolve``)."""
     try:
         cli = OmegaConf.from_dotlist(_normalise_cli(argv))
-        preset = cli.get("preset", SweepConfig.preset)
+        preset = cli.get("preset", SweepKnobs.preset)
         preset_file = PRESET_DIR / f"{preset}.yaml"
         if not preset_file.is_file():
             known = sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
             raise UserError(
                 f"preset={preset} has no file {preset_file}: use one of {', '.join(known)}"
             )
-        preset_cfg = OmegaConf.load(preset_file)
-        merged = OmegaConf.merge(OmegaConf.structured(SweepConfig), preset_cfg, cli)
-        cfg = OmegaConf.to_object(merged)
+        merged = OmegaConf.merge(
+            OmegaConf.structured(SweepConfig), OmegaConf.load(preset_file), cli
+        )
+        return _normalised(OmegaConf.to_object(merged))
     except OmegaConfBaseException as err:
         raise UserError(f"bad config: {_first_line(err)}: see docs/config.md") from None
-    if cfg.data.aligned_training:
-        return cfg
-    # A preset for any source asks for nothing: its paired objectives give way on a
-    # benchmark without aligned places, as the defaults' do.
-    from_preset = preset not in SOURCE_FREE_PRESETS
-    asked = {
-        key
-        for key in ("methods", "fae.objective", "cae.objective")
-        if OmegaConf.select(cli, key) is not None
-        or (from_preset and OmegaConf.select(preset_cfg, key) is not None)
-    }
-    return without_aligned_learning(cfg, asked)
 
 
 def config_from_dict(saved: dict) -> SweepConfig:
@@ -744,40 +582,9 @@ def config_from_dict(saved: dict) -> SweepConfig:
     typed config it was."""
     try:
         merged = OmegaConf.merge(OmegaConf.structured(SweepConfig), saved)
-        return OmegaConf.to_object(merged)
+        return _normalised(OmegaConf.to_object(merged))
     except OmegaConfBaseException as err:
         raise UserError(f"bad saved config: {_first_line(err)}: rerun the sweep") from None
-
-
-def without_aligned_learning(cfg: SweepConfig, asked: set[str]) -> SweepConfig:
-    """A benchmark without aligned training places (no ``data.train_source``): the methods
-    and objectives that learn from the alignment are left out of the defaults; asked for by
-    name, they are one line."""
-    source = f"data.source={cfg.data.source}"
-    fix = method_table.ALIGNED_FIX
-    wanted = [m for m in cfg.methods if m in method_table.NEEDS_ALIGNED]
-    _check(
-        not (wanted and "methods" in asked),
-        f"methods {wanted} learn from aligned training places, which {source} does not have: {fix}",
-    )
-    changes = {"methods": tuple(m for m in cfg.methods if m not in method_table.NEEDS_ALIGNED)}
-    for model in (m.name for m in method_table.BUILTIN if m.trained):
-        objectives = getattr(cfg, model).objective
-        paired = [o for o in objectives if o in PAIRED_OBJECTIVES]
-        if paired and model in changes["methods"]:
-            _check(
-                f"{model}.objective" not in asked,
-                f"{model}.objective={','.join(paired)} needs "
-                f"aligned training places, which {source} does not have: {fix}",
-            )
-        kept = tuple(o for o in objectives if o not in paired) or ("reconstruct",)
-        changes[model] = dataclasses.replace(getattr(cfg, model), objective=kept)
-    _check(
-        bool(changes["methods"]) or bool(cfg.precomputed),
-        f"methods={list(cfg.methods)} all learn from aligned "
-        f"training places, which {source} does not have: {fix}",
-    )
-    return dataclasses.replace(cfg, **changes)
 
 
 def training_identity(settings: TrainConfig) -> dict:

@@ -1,20 +1,15 @@
-"""The one table of methods: every built-in method named once, with what the rest of the
-suite asks of it, and how a user's ``module:name`` joins them.
+"""The one table of methods: every built-in method is one line here and one module under
+``vpr_jax/methods/``, and a user's ``module:name`` joins them as the same kind of object.
 
-JAX-free (config validates ``methods=[...]`` against it before JAX loads); a method's code
-is named by a ``"module:function"`` string and imported only when the sweep runs it.
+A line names the method's object as ``"module:object"``: ``fit``, ``encode`` and the
+declarations the runner reads instead of checking names (``vpr_jax.methods.contract``).
+JAX-free: config validates ``methods=[...]`` against the table before JAX loads; the plan
+imports the objects (``experiments.resolve``). Adding a built-in: a module with its
+``Settings`` and ``method``, and one line in ``BUILTIN`` (docs/methods.md, "Adding a
+built-in method"); its colour follows from its place here.
 
-Two ways in, one list of methods:
-- a built-in method is a ``describe(pair, cfg, ctx)`` generator of ``Descriptors`` (the
-  runner's protocol: validation images, the pair's shared PCA fit, checkpoints, the device
-  mesh; ``vpr_jax.methods``). Adding one: a module under ``vpr_jax/methods/`` and one line in
-  ``BUILTIN`` (docs/methods.md, "Adding a method");
-- a user's method is ``methods=[...,package.module:name]``: an object with ``fit(train,
-  aligned, key, **settings) -> state`` and ``encode(state, images) -> (n, d)``
-  (``vpr_jax.methods.plugin``). Its row, run and folder are named ``name``.
-
-And one source of descriptors that is not a fitted method: ``PRECOMPUTED``, descriptors
-computed elsewhere and read from ``.npy`` files (``precomputed.<name>.database=PATH``,
+And one source of descriptors that is not a fitted method: ``precomputed`` sets, computed
+elsewhere and read from ``.npy`` files (``precomputed.<name>.database=PATH``,
 ``precomputed.<name>.queries=PATH``; ``vpr_jax.methods.precomputed``). Each set is a row
 named ``<name>``; it fits nothing, so nothing is saved or exported as an encoder.
 """
@@ -29,69 +24,26 @@ from vpr_jax.errors import UserError, first_line
 
 
 class MethodInfo(NamedTuple):
-    name: str  # results.csv's method column; the runs' and fitted states' folder names
-    describe: str  # "module:function" of its describe(pair, cfg, ctx) -> Descriptors
-    sweeps_removed_pcs: bool = False  # one cell per removed-PC count (one fit serves them)
-    needs_alignment: bool = False  # learns from aligned training places of two seasons
-    uses_pca_fit: bool = False  # its context carries the pair's shared PCA fit
-    trained: bool = False  # an auto-encoder: an objective axis, epochs, training checkpoints
-    plugin: str = ""  # a user's method: its "module:name"; "" for the built-in ones
+    name: str  # results.csv's method column; its runs' and fitted states' folder names
+    method: str  # "module:object" with fit, encode and declarations (methods.contract)
+    plugin: bool = False  # a user's method (methods=[...,module:name])
     precomputed: bool = False  # descriptors made elsewhere: nothing fitted, saved or exported
 
 
-_LINEAR, _AE = "vpr_jax.methods.linear", "vpr_jax.methods.autoencoders"
 BUILTIN: tuple[MethodInfo, ...] = (
-    MethodInfo(
-        name="raw",
-        describe=f"{_LINEAR}:describe_raw",
-    ),
-    MethodInfo(
-        name="pca",
-        describe=f"{_LINEAR}:describe_pca",
-        sweeps_removed_pcs=True,
-        uses_pca_fit=True,
-    ),
-    MethodInfo(
-        name="diff_pca",
-        describe=f"{_LINEAR}:describe_diff_pca",
-        sweeps_removed_pcs=True,
-        needs_alignment=True,
-    ),
-    MethodInfo(
-        name="ica",
-        describe=f"{_LINEAR}:describe_ica",
-        sweeps_removed_pcs=True,
-        uses_pca_fit=True,
-    ),
-    MethodInfo(
-        name="lda",
-        describe=f"{_LINEAR}:describe_lda",
-        needs_alignment=True,
-        uses_pca_fit=True,
-    ),
-    MethodInfo(
-        name="fae",
-        describe=f"{_AE}:describe_fae",
-        trained=True,
-    ),
-    MethodInfo(
-        name="cae",
-        describe=f"{_AE}:describe_cae",
-        trained=True,
-    ),
-)
-# Descriptors computed elsewhere: a source, not a method the suite fits (see the docstring).
-PRECOMPUTED = MethodInfo(
-    name="precomputed",
-    describe="vpr_jax.methods.precomputed:describe_precomputed",
-    precomputed=True,
+    MethodInfo(name="raw", method="vpr_jax.methods.raw:method"),
+    MethodInfo(name="pca", method="vpr_jax.methods.pca:method"),
+    MethodInfo(name="diff_pca", method="vpr_jax.methods.diff_pca:method"),
+    MethodInfo(name="ica", method="vpr_jax.methods.ica:method"),
+    MethodInfo(name="lda", method="vpr_jax.methods.lda:method"),
+    MethodInfo(name="fae", method="vpr_jax.methods.fae:method"),
+    MethodInfo(name="cae", method="vpr_jax.methods.cae:method"),
 )
 METHODS: dict[str, MethodInfo] = {m.name: m for m in BUILTIN}
 NAMES: tuple[str, ...] = tuple(METHODS)
-SWEEPS_REMOVED_PCS = frozenset(m.name for m in BUILTIN if m.sweeps_removed_pcs)
-NEEDS_ALIGNED = tuple(m.name for m in BUILTIN if m.needs_alignment)
-TRAINED = frozenset(m.name for m in BUILTIN if m.trained)
-PLUGIN_DESCRIBE = "vpr_jax.methods.plugin:describe_plugin"
+BASELINE = "pca"  # results.md's paired differences are to this method's selected rows
+SHARED_FIT = "pca"  # whose fit, with its settings, is the pair's shared PCA fit (pca_fit)
+PRECOMPUTED = "precomputed"  # the methods entry that asks for outside descriptors only
 
 # What a method that learns from aligned places is told on data without them.
 ALIGNED_FIX = (
@@ -99,6 +51,7 @@ ALIGNED_FIX = (
     "Nordland's training places), or leave them out"
 )
 _PLUGIN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
+_SET_NAME = re.compile(r"^[A-Za-z_]\w*$")
 
 
 def is_plugin(method: str) -> bool:
@@ -106,23 +59,39 @@ def is_plugin(method: str) -> bool:
     return ":" in method
 
 
-def model_name(method: str, objective: str = "") -> str:
-    """``fae`` for the seed's objective (and methods without one), ``fae_cross_season``
-    otherwise: names the cell's run, the model's checkpoint folder, its training run, its
-    method-by-method run and its legend entry."""
-    return method if objective in ("", "reconstruct") else f"{method}_{objective}"
-
-
 def plugin_name(spec: str) -> str:
     """The name a user's method goes by: the part after the colon."""
     return spec.rsplit(":", 1)[1]
 
 
-def check_methods(methods: tuple[str, ...], objectives: tuple[str, ...]) -> str | None:
+def model_name(method: str, objective: str = "") -> str:
+    """``fae`` for the seed's objective (and methods without one), ``fae_cross_season``
+    otherwise: names the cell's run, the model's folder, its training run, its
+    method-by-method run and its legend entry."""
+    return method if objective in ("", "reconstruct") else f"{method}_{objective}"
+
+
+def model_label(
+    method: str, objective: str = "", setting: str = "", seed: int | None = None
+) -> str:
+    """A fitted model's name in runs, folders and legends: ``fae``, ``fae_cross_season``,
+    ``ica_n_components=64``, ``fae_seed1`` (a seed only where it is not the data's)."""
+    name = model_name(method, objective)
+    if setting:
+        name += f"_{run_suffix(setting)}"
+    return name if seed is None else f"{name}_seed{seed}"
+
+
+def run_suffix(setting: str) -> str:
+    """A setting's label as part of a run or folder name: ``n_components=64``,
+    ``hidden=256_init=pca``; characters a file name should not hold become ``-``."""
+    return re.sub(r"[^A-Za-z0-9._=+-]", "-", setting.replace(" ", "_").replace(",", "-"))
+
+
+def check_methods(methods: tuple[str, ...]) -> str | None:
     """What is wrong with ``methods=[...]`` (built-in names and ``module:name`` entries), as
-    one line naming the fix, or None. ``objectives``: the auto-encoders' objectives, whose
-    run names (``fae_cross_season``) a plugin may not take."""
-    unknown = [m for m in methods if not is_plugin(m) and m not in (*METHODS, PRECOMPUTED.name)]
+    one line naming the fix, or None."""
+    unknown = [m for m in methods if not is_plugin(m) and m not in (*METHODS, PRECOMPUTED)]
     if unknown:
         return (
             f"methods={list(methods)} names unknown {unknown}: choose from {', '.join(NAMES)}, "
@@ -134,9 +103,8 @@ def check_methods(methods: tuple[str, ...], objectives: tuple[str, ...]) -> str 
             f"methods entry {malformed[0]!r} is not module:name: write e.g. "
             "my_package.my_module:my_method"
         )
-    taken = {*NAMES, *(f"{m}_{o}" for m in TRAINED for o in objectives)}
     names = [plugin_name(m) for m in methods if is_plugin(m)]
-    clash = [n for n in names if n in taken]
+    clash = [n for n in names if n in NAMES]
     if clash:
         return (
             f"your method {clash[0]!r} has the name of a built-in method or run: rename the "
@@ -151,14 +119,10 @@ def check_methods(methods: tuple[str, ...], objectives: tuple[str, ...]) -> str 
     return None
 
 
-_SET_NAME = re.compile(r"^[A-Za-z_]\w*$")
-
-
-def check_precomputed(names: tuple[str, ...], methods: tuple[str, ...], objectives) -> str | None:
+def check_precomputed(names: tuple[str, ...], methods: tuple[str, ...]) -> str | None:
     """What is wrong with the names of ``precomputed.<name>`` sets, as one line, or None:
-    each a plain name that no built-in method, run or user's method of ``methods`` has."""
-    taken = {*NAMES, *(f"{m}_{o}" for m in TRAINED for o in objectives)}
-    taken |= {plugin_name(m) for m in methods if is_plugin(m)}
+    each a plain name that no built-in method or user's method of ``methods`` has."""
+    taken = {*NAMES, *(plugin_name(m) for m in methods if is_plugin(m))}
     for name in names:
         if not _SET_NAME.match(name):
             return (
@@ -173,73 +137,35 @@ def check_precomputed(names: tuple[str, ...], methods: tuple[str, ...], objectiv
     return None
 
 
+def info_of(entry: str) -> MethodInfo:
+    """A ``methods=`` entry as a row of the table: a built-in's line, or a user's method."""
+    if is_plugin(entry):
+        return MethodInfo(name=plugin_name(entry), method=entry, plugin=True)
+    return METHODS[entry]
+
+
 def precomputed_info(name: str) -> MethodInfo:
     """A set of outside descriptors as a row of the table."""
-    return PRECOMPUTED._replace(name=name)
+    return MethodInfo(name=name, method="", precomputed=True)
 
 
-def plugin_info(spec: str, needs_alignment: bool) -> MethodInfo:
-    """A user's method as a row of the table."""
-    name = plugin_name(spec)
-    return MethodInfo(
-        name=name,
-        describe=PLUGIN_DESCRIBE,
-        needs_alignment=needs_alignment,
-        plugin=spec,
-    )
-
-
-def load_plugin(spec: str) -> Any:
-    """The object ``module:name`` names, checked for ``fit`` and ``encode``; UserError (one
-    line) when it cannot serve."""
-    module_name, name = spec.rsplit(":", 1)
+def load_object(info: MethodInfo) -> Any:
+    """The object a row names, imported now; a user's that cannot be: UserError (one line)."""
+    module_name, name = info.method.rsplit(":", 1)
     try:
         module = importlib.import_module(module_name)
     except Exception as err:  # the user's module: any failure is theirs to see
+        if not info.plugin:
+            raise
         raise UserError(
-            f"method {spec}: module {module_name} does not import ({first_line(err)}): put its "
-            f"folder on PYTHONPATH, and see its traceback with python -c 'import {module_name}'"
+            f"method {info.method}: module {module_name} does not import ({first_line(err)}): "
+            f"put its folder on PYTHONPATH, and see its traceback with python -c 'import "
+            f"{module_name}'"
         ) from None
     obj = getattr(module, name, None)
     if obj is None:
         raise UserError(
-            f"method {spec}: module {module_name} ({getattr(module, '__file__', '?')}) has no "
-            f"{name}: name the object that has fit and encode"
-        )
-    missing = [a for a in ("fit", "encode") if not callable(getattr(obj, a, None))]
-    if missing:
-        raise UserError(
-            f"method {spec} has no callable {' or '.join(missing)}: give it fit(train, "
-            "aligned, key) -> state and encode(state, images) -> (n, d) (docs/methods.md)"
+            f"method {info.method}: module {module_name} ({getattr(module, '__file__', '?')}) "
+            f"has no {name}: name the object that has fit and encode"
         )
     return obj
-
-
-def resolve_methods(
-    methods: tuple[str, ...], aligned: bool, source: str, precomputed: tuple[str, ...] = ()
-) -> tuple[MethodInfo, ...]:
-    """The table rows of ``methods=[...]``, users' methods imported and checked, then the
-    ``precomputed`` sets' rows; a method that needs aligned training places on data without
-    them (``aligned`` False) is refused the way a named diff_pca is."""
-    out = []
-    for method in methods:
-        if not is_plugin(method):
-            out.append(METHODS[method])
-            continue
-        needs = bool(getattr(load_plugin(method), "needs_alignment", False))
-        if needs and not aligned:
-            raise UserError(
-                f"method {method} learns from aligned training places (needs_alignment), "
-                f"which data.source={source} does not have: {ALIGNED_FIX}"
-            )
-        out.append(plugin_info(method, needs))
-    return (*out, *(precomputed_info(name) for name in precomputed))
-
-
-def describe_function(info: MethodInfo):
-    """The runner's ``describe(pair, cfg, ctx)`` of a table row, imported now."""
-    module_name, name = info.describe.split(":")
-    function = getattr(importlib.import_module(module_name), name)
-    if info.plugin or info.precomputed:
-        return lambda pair, cfg, ctx: function(info, pair, cfg, ctx)
-    return function

@@ -16,12 +16,6 @@ import numpy as np
 from vpr_jax.data.ground_truth import MatchSets, Tolerance
 from vpr_jax.data.route import Route
 
-# The one pair each benchmark source has: (database side, query side).
-BENCHMARK_PAIRS = {
-    "vpr_bench": ("ref", "query"),
-    "positions": ("database", "queries"),
-    "nordland_star": ("winter", "summer"),
-}
 STAR_QUERY_STEP = 10  # Nordland*: every 10th summer frame is a query
 STAR_TOLERANCE = 1  # ... matching the winter references within +-1 frame
 

@@ -35,6 +35,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vpr_jax.config import NORDLAND_SOURCES
 from vpr_jax.data.frames import frame_id_from_name, parse_frame_list
 from vpr_jax.data.images import (
     IMAGE_EXTENSIONS,
@@ -53,7 +54,7 @@ from vpr_jax.shapes import MAX_PIXELS
 
 PathLike = str | os.PathLike
 
-SOURCES = ("nordland_images", "nordland_videos", "folders")
+SOURCES = NORDLAND_SOURCES
 VIDEO_EXTENSIONS = tuple(".mp4 .avi .mkv .mov .webm .m4v .mpg .mpeg .wmv .flv .ts".split())
 RELEASE_NAME = re.compile(r"^images-(\d+)\.png$", re.IGNORECASE)
 

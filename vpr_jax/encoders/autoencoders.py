@@ -25,6 +25,7 @@ and pooling is a reshape and a max (``max_pool_2x2``); together about 2x faster 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable, Sequence
@@ -276,6 +277,32 @@ def build(spec: Spec, key: jax.Array, image_shape: Sequence[int] = IMAGE_SHAPE):
             )
     graphdef, _ = nnx.split(nnx.eval_shape(lambda: _module(spec, key, image_shape)))
     return graphdef, _init_params(spec, key, image_shape)
+
+
+@functools.cache  # the architecture, without drawing weights: once per spec
+def graph_of(spec: Spec, image_shape: tuple[int, int] = IMAGE_SHAPE):
+    """The graph definition ``build`` gives, for encoding saved parameters."""
+    module = nnx.eval_shape(lambda: _module(spec, jax.random.key(0), tuple(image_shape)))
+    return nnx.split(module)[0]
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ModelState:
+    """A trained auto-encoder as a fitted state: its parameters, what its training came to,
+    and (static, not arrays) the architecture that encodes with them."""
+
+    params: dict  # the selected epoch's parameters
+    epochs: Array  # () int: epochs trained, over every session
+    stopped_early: Array  # () bool: early stopping ended training before its last epoch
+    train_seconds: Array  # () float: training time, over every session
+    spec: Spec = dataclasses.field(metadata={"static": True})
+    image_shape: tuple[int, int] = dataclasses.field(metadata={"static": True})
+
+
+def encode_state(state: ModelState, images: Float[Array, "n h w ..."]) -> Float[Array, "n code"]:
+    """The code of ``images``: the model's descriptor."""
+    return make_encode(graph_of(state.spec, state.image_shape))(state.params, images)
 
 
 def count_params(params) -> int:

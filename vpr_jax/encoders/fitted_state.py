@@ -2,8 +2,9 @@
 saved with orbax and restored in the structure it was saved in.
 
 Orbax restores a tree without a target as plain dicts and lists, so the tree's skeleton is
-kept beside its arrays (``skeleton.json``): containers by kind, a NamedTuple by its
-importable class, each leaf by its index among the flat ``leaf_NNN`` arrays orbax holds.
+kept beside its arrays (``skeleton.json``): containers by kind, a NamedTuple or a registered
+dataclass by its importable class (a dataclass's static fields, ``metadata={"static":
+True}``, as JSON), each leaf by its index among the flat ``leaf_NNN`` arrays orbax holds.
 Restoring rebuilds the skeleton, gives orbax the target of every leaf's shape and dtype,
 and puts the arrays back in their places. Python numbers become 0-d arrays.
 
@@ -12,6 +13,7 @@ Writes are whole or absent: the new folder is written aside and moved into place
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import shutil
@@ -40,10 +42,26 @@ def _skeleton(tree: Any, leaves: list[np.ndarray]) -> Any:
             "namedtuple": f"{kind.__module__}:{kind.__qualname__}",
             "fields": {f: _skeleton(getattr(tree, f), leaves) for f in tree._fields},
         }
+    if dataclasses.is_dataclass(tree) and not isinstance(tree, type):
+        kind, fields = type(tree), dataclasses.fields(tree)
+        return {
+            "dataclass": f"{kind.__module__}:{kind.__qualname__}",
+            "fields": {
+                f.name: _skeleton(getattr(tree, f.name), leaves)
+                for f in fields
+                if not f.metadata.get("static")
+            },
+            "static": {
+                f.name: _static(getattr(tree, f.name)) for f in fields if f.metadata.get("static")
+            },
+        }
     if isinstance(tree, dict):
-        if not all(isinstance(k, str) for k in tree):
-            raise TypeError(f"a fitted state's dict keys must be strings, got {list(tree)}")
-        return {"dict": {k: _skeleton(v, leaves) for k, v in tree.items()}}
+        if all(isinstance(k, str) for k in tree):
+            return {"dict": {k: _skeleton(v, leaves) for k, v in tree.items()}}
+        if not all(isinstance(k, str | int) for k in tree):
+            raise TypeError(f"a fitted state's dict keys must be text or numbers: {list(tree)}")
+        # Flax's pure dicts number the layers of a list: keys kept with their type
+        return {"items": [[k, _skeleton(v, leaves)] for k, v in tree.items()]}
     if isinstance(tree, list | tuple):
         kind = "list" if isinstance(tree, list) else "tuple"
         return {kind: [_skeleton(v, leaves) for v in tree]}
@@ -57,6 +75,37 @@ def _skeleton(tree: Any, leaves: list[np.ndarray]) -> Any:
     return {"leaf": len(leaves) - 1, "shape": list(array.shape), "dtype": str(array.dtype)}
 
 
+def _static(value: Any) -> Any:
+    """A static field's value as JSON data: numbers, text, tuples, NamedTuples of them."""
+    if isinstance(value, tuple) and hasattr(value, "_fields"):
+        kind = type(value)
+        return {
+            "namedtuple": f"{kind.__module__}:{kind.__qualname__}",
+            "fields": {f: _static(getattr(value, f)) for f in value._fields},
+        }
+    if isinstance(value, list | tuple):
+        return {"tuple": [_static(v) for v in value]}
+    return value
+
+
+def _from_static(data: Any) -> Any:
+    if isinstance(data, dict) and "tuple" in data:
+        return tuple(_from_static(v) for v in data["tuple"])
+    if isinstance(data, dict) and "namedtuple" in data:
+        return _import(data["namedtuple"])(
+            **{f: _from_static(v) for f, v in data["fields"].items()}
+        )
+    return data
+
+
+def _import(path: str) -> Any:
+    module, name = path.split(":")
+    found = importlib.import_module(module)
+    for part in name.split("."):
+        found = getattr(found, part)
+    return found
+
+
 def _rebuild(skeleton: Any, leaves: dict[str, Any]) -> Any:
     (kind, value), *_ = skeleton.items()
     if kind == "none":
@@ -65,14 +114,14 @@ def _rebuild(skeleton: Any, leaves: dict[str, Any]) -> Any:
         return leaves[f"leaf_{value:03d}"]
     if kind == "dict":
         return {k: _rebuild(v, leaves) for k, v in value.items()}
+    if kind == "items":
+        return {k: _rebuild(v, leaves) for k, v in value}
     if kind in ("list", "tuple"):
         items = [_rebuild(v, leaves) for v in value]
         return items if kind == "list" else tuple(items)
-    module, name = value.split(":")
-    cls = importlib.import_module(module)
-    for part in name.split("."):
-        cls = getattr(cls, part)
-    return cls(**{f: _rebuild(v, leaves) for f, v in skeleton["fields"].items()})
+    fields = {f: _rebuild(v, leaves) for f, v in skeleton["fields"].items()}
+    static = {f: _from_static(v) for f, v in skeleton.get("static", {}).items()}
+    return _import(value)(**fields, **static)
 
 
 def _targets(skeleton: Any, out: dict) -> dict:
@@ -86,6 +135,8 @@ def _targets(skeleton: Any, out: dict) -> dict:
         children = list(skeleton["fields"].values())
     elif "dict" in skeleton:
         children = list(skeleton["dict"].values())
+    elif "items" in skeleton:
+        children = [child for _, child in skeleton["items"]]
     else:  # list, tuple or none
         children = next(iter(skeleton.values())) or []
     for child in children:

@@ -1,15 +1,16 @@
 """Every fitted method as an encoder you can take away: ``load_encoder(folder)`` gives
 ``(encode_fn, params)`` for raw, pca, diff_pca, ica, lda, the auto-encoders and a user's
-``module:name`` method, from the folders a sweep saves under ``train.checkpoint_dir``.
+``module:name`` method alike, from the folders a sweep saves under ``train.checkpoint_dir``.
 
-A folder holds the fitted state (``fitted_state``; the auto-encoders: their training
-checkpoint), ``fit.json`` (what was fitted, written when the fit ends) and ``encoder.json``
-(the description a user reads, written with the pair's summary: the method, objective,
-pair, the validation-selected removed-PC count, its validation recall@1, the
-preprocessing). ``encode_fn(params, images)`` is pure and jitted and includes every step
-after reading: images float32 ``(n, 32, 64)`` in [0, 1] (grey, resized to 64x32 with
-OpenCV's area interpolation, divided by 255), then patch normalisation when the sweep used
-it (float32 here, float64 in the sweep: the descriptors agree to about 1e-5 relative).
+A folder holds the fitted state (``state/``, ``fitted_state``), ``fit.json`` (what was
+fitted: the method's ``module:object``, its settings, the values one fit serves such as
+pca's removed counts; written when the fit ends), ``encoder.json`` (the description a user
+reads, written with the pair's report: the served value chosen on the validation places,
+its validation recall@1, the preprocessing) and, for a trained model, its training
+checkpoints. ``encode_fn(params, images)`` is pure and jitted and includes every step after
+reading: images float32 ``(n, 32, 64)`` in [0, 1] (grey, resized to 64x32 with OpenCV's
+area interpolation, divided by 255), then patch normalisation when the sweep used it
+(float32 here, float64 in the sweep: the descriptors agree to about 1e-5 relative).
 """
 
 from __future__ import annotations
@@ -26,53 +27,14 @@ import jax.numpy as jnp
 
 from vpr_jax.data.preprocess import patch_normalize_jax
 from vpr_jax.encoders import autoencoders as ae
-from vpr_jax.encoders import checkpoints, ica, lda, pca
+from vpr_jax.encoders import checkpoints
 from vpr_jax.encoders.fitted_state import restore_state, save_state
 from vpr_jax.errors import UserError
 from vpr_jax.files import atomic_write_text
-from vpr_jax.method_table import load_plugin
+from vpr_jax.method_table import MethodInfo, load_object
 
-FORMAT = 1  # of encoder.json and fit.json; a newer one is refused
-ENCODER_JSON, FIT_JSON = "encoder.json", "fit.json"
-
-
-# How a saved state encodes: ``encode(state, images, removed_pcs) -> (n, d)``, the
-# descriptors the sweep compared by cosine. A method names its function in its ``Fitted``
-# (``"vpr_jax.encoders.saved:encode_centred"``); fit.json keeps the name.
-
-
-def encode_centred(state, images, removed_pcs):
-    """Raw pixels: flattened, the training mean subtracted."""
-    return pca.flatten(images) - state["mean"]
-
-
-def encode_suffix(state, images, removed_pcs):
-    """PCA or diff_pca, ``removed_pcs`` removed: the suffix ``[k:]`` of its coefficients and
-    residual (``pca.suffix_descriptors``)."""
-    return pca.suffix_descriptors(state, images)[:, removed_pcs:]
-
-
-def encode_pixels(state, images, removed_pcs):
-    """PCA with ``pca.output=pixels``: the change-removed image itself."""
-    return pca.encode(state, images, removed_pcs, "pixels")
-
-
-def encode_ica(state, images, removed_pcs):
-    return ica.encode(state, images)
-
-
-def encode_lda(state, images, removed_pcs):
-    return lda.encode(state, images)
-
-
-def _encode_function(name: str, folder: Path) -> Callable:
-    module, _, function = name.partition(":")
-    if not module.startswith("vpr_jax.") or not function:
-        raise UserError(f"{folder / FIT_JSON} names encode {name!r}: not one of vpr_jax's")
-    try:
-        return getattr(importlib.import_module(module), function)
-    except (ImportError, AttributeError):
-        raise UserError(f"{folder} needs {name}, which this vpr_jax lacks: update it") from None
+FORMAT = 2  # of encoder.json and fit.json; another is refused
+ENCODER_JSON, FIT_JSON, STATE = "encoder.json", "fit.json", "state"
 
 
 def read_description(folder: Path, name: str = ENCODER_JSON) -> dict:
@@ -105,15 +67,12 @@ def suite_version() -> str:
         return "unknown"
 
 
-def save_fitted(folder: Path, encode: str, state: Any, description: dict) -> None:
-    """Save a fitted state and its ``fit.json`` (``description`` and how it encodes: a
-    ``"module:function"``, ``"autoencoder"`` or ``"plugin"``) as ``folder``; an
-    auto-encoder's state is its training checkpoint, already in ``folder``."""
-    text = json.dumps({"format": FORMAT, "encode": encode, **description}, indent=1)
-    if encode == "autoencoder":
-        atomic_write_text(Path(folder) / FIT_JSON, text)
-    else:
-        save_state(folder, state, {FIT_JSON: text})
+def save_fitted(folder: Path, state: Any, description: dict) -> None:
+    """Save a fitted state (``folder/state``, whole) and then its ``fit.json``
+    (``description``: the method's ``module:object`` as ``method``, what it serves)."""
+    save_state(Path(folder) / STATE, state)
+    text = json.dumps({"format": FORMAT, **description}, indent=1)
+    atomic_write_text(Path(folder) / FIT_JSON, text)
 
 
 def describe_encoder(folder: Path, selection: dict) -> dict:
@@ -131,19 +90,26 @@ def _preprocess(description: dict) -> Callable[[jax.Array], jax.Array]:
     return functools.partial(patch_normalize_jax, size=norm["size"], rounded=norm["rounded"])
 
 
-def _served(description: dict, removed_pcs: int | None, folder: Path) -> int:
-    counts = description.get("counts", [0])
-    k = description.get("removed_pcs", counts[0]) if removed_pcs is None else int(removed_pcs)
-    if k not in counts:
-        raise UserError(
-            f"{folder} serves removed_pcs {counts}, not {k}: pass one of them (or None for the "
-            "count chosen on the validation places)"
-        )
-    return k
+def _served(description: dict, removed_pcs: int | None, folder: Path) -> dict:
+    """The served values to encode with: the ones chosen on the validation places (or the
+    first of each), ``removed_pcs`` where given."""
+    serves = description.get("serves", {})
+    chosen = {name: values[0] for name, values in serves.items()}
+    chosen.update(description.get("chosen", {}))
+    if removed_pcs is not None:
+        counts = serves.get("removed_pcs", [])
+        if int(removed_pcs) not in counts:
+            raise UserError(
+                f"{folder} serves removed_pcs {counts}, not {removed_pcs}: pass one of them (or "
+                "None for the count chosen on the validation places)"
+            )
+        chosen["removed_pcs"] = int(removed_pcs)
+    return chosen
 
 
-def _autoencoder(folder: Path):
-    """The trained model's encoder and its best parameters (from its training checkpoint)."""
+def _checkpointed_model(folder: Path):
+    """A model ``fit_autoencoder`` trained, as its checkpoint holds it: its encoder and its
+    best parameters."""
     meta = checkpoints.read_meta(folder)
     try:
         spec = ae.spec_from_json(meta["spec"])
@@ -151,43 +117,66 @@ def _autoencoder(folder: Path):
         raise UserError(f"{folder} holds no auto-encoder this suite knows ({err})") from None
     graphdef, like = ae.build(spec, jax.random.key(0), tuple(meta["image_shape"]))
     model_encode = ae.make_encode(graphdef)
-    return (lambda params, images, k: model_encode(params, images)), checkpoints.restore_model(
+    return (lambda params, images: model_encode(params, images)), checkpoints.restore_model(
         folder, like
     )
 
 
+def _chosen_folder(folder: Path) -> Path:
+    """``<pair>/<model>`` names a model whose fits have folders of their own
+    (``ica_k005``, ``fae_hidden=1024``): the one chosen on the validation places."""
+    found = []
+    for candidate in sorted(folder.parent.glob(f"{folder.name}*/{ENCODER_JSON}")):
+        description = read_description(candidate.parent)
+        if description.get("model") == folder.name and description.get("selected"):
+            found.append((description.get("seed", 0), candidate.parent))
+    if not found:
+        raise UserError(
+            f"{folder} holds no encoder and names none of the pair's: point at a folder a "
+            "finished sweep saved (python -m experiments.encoders LOGDIR lists them)"
+        )
+    return min(found)[1]
+
+
 class StoredEncoder(NamedTuple):
     """A saved folder's parts: ``encode(params, images)`` on preprocessed images, as the
-    sweep called it (not jitted as a whole: the sweep's own jitted steps, so its descriptors
-    come back bit for bit), the fitted state and the preprocessing the sweep applied."""
+    sweep called it (not jitted as a whole: the method's own jitted steps, so its
+    descriptors come back bit for bit), the fitted state and the preprocessing the sweep
+    applied."""
 
     encode: Callable
     params: Any
     preprocess: Callable[[jax.Array], jax.Array]
 
 
-def stored_encoder(folder: str | Path, removed_pcs: int | None = None) -> StoredEncoder:
-    """The parts ``load_encoder`` composes (see there for the arguments)."""
+def stored_encoder(
+    folder: str | Path, removed_pcs: int | None = None, served: dict | None = None
+) -> StoredEncoder:
+    """The parts ``load_encoder`` composes (see there for the arguments); ``served``: the
+    served values to encode with, as fit.json lists a cell's (the export's)."""
     folder = Path(folder).expanduser().resolve()
-    if not (folder / ENCODER_JSON).exists() and checkpoints.has_checkpoint(folder):
-        description = {"encode": "autoencoder"}  # a model fit_autoencoder trained, as it is
-    else:
-        description = read_description(folder)
-    how = str(description.get("encode"))
-    k = _served(description, removed_pcs, folder)
-    if how == "autoencoder":
-        encode, params = _autoencoder(folder)
-    elif how == "plugin":
-        user_encode = jax.jit(load_plugin(description["method"]).encode)
-        encode, params = (
-            (lambda state, images, _: user_encode(state, images)),
-            restore_state(folder),
-        )
-    else:
-        encode, params = _encode_function(how, folder), restore_state(folder)
+    if not (folder / FIT_JSON).exists() and checkpoints.has_checkpoint(folder):
+        encode, params = _checkpointed_model(folder)  # a model trained without a sweep
+        return StoredEncoder(encode, jax.tree.map(jnp.asarray, params), lambda images: images)
+    if not folder.exists():
+        folder = _chosen_folder(folder)
+    description = read_description(folder)
+    served = _served(description, removed_pcs, folder) if served is None else dict(served)
+    reference = str(description.get("method"))
+    info = MethodInfo(
+        name=str(description.get("name")),
+        method=reference,
+        plugin=not reference.startswith("vpr_jax."),
+    )
+    try:
+        method_encode = load_object(info).encode
+    except (ImportError, AttributeError):
+        raise UserError(
+            f"{folder} needs {reference}, which this vpr_jax lacks: update it"
+        ) from None
     return StoredEncoder(
-        encode=functools.partial(lambda fn, p, x: fn(p, x, k), encode),
-        params=jax.tree.map(jnp.asarray, params),
+        encode=functools.partial(lambda fn, p, x: fn(p, x, **served), method_encode),
+        params=jax.tree.map(jnp.asarray, restore_state(folder / STATE)),
         preprocess=_preprocess(description),
     )
 
@@ -197,7 +186,10 @@ def load_encoder(folder: str | Path, removed_pcs: int | None = None):
     d)`` is pure and jitted (use it in your own jitted code, vmap it, differentiate through
     it); ``params`` is the fitted state. ``removed_pcs``: for pca, diff_pca (one fit serves
     every count the sweep ran) the count to remove; None: the one chosen on the validation
-    places. A checkpoint folder of ``fit_autoencoder`` (no sweep around it) loads too."""
+    places. ``<pair>/<model>`` without a folder of that name (ica, whose fits are
+    ``ica_k005``, ..., or a model with swept settings) gives the fit chosen on the
+    validation places. A checkpoint folder of ``fit_autoencoder`` (no sweep around it) loads
+    too."""
     stored = stored_encoder(folder, removed_pcs)
     encode, pre = stored.encode, stored.preprocess
 

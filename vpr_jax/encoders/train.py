@@ -38,7 +38,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float
 
-from vpr_jax import sharding
+from vpr_jax import config, sharding
 from vpr_jax.config import TrainConfig, plain
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
@@ -47,7 +47,7 @@ from vpr_jax.errors import UserError
 from vpr_jax.progress import Bar
 from vpr_jax.sharding import AXIS
 
-OPTIMIZERS = {"adam": optax.adam, "adamw": optax.adamw, "sgd": optax.sgd}  # config's names
+OPTIMIZERS = {name: getattr(optax, name) for name in config.OPTIMIZERS}
 SELECT_RECALL, SELECT_LOSS = "validation recall@1", "validation loss"
 # validate(encode) -> the validation places' recall@1 of a model's encode(images) -> codes
 Validate = Callable[[Callable[[np.ndarray], Array]], float]
@@ -85,13 +85,56 @@ class TrainResult(NamedTuple):
 
 
 class TrainingLog(Protocol):
-    """Where training reports: TensorBoard and the run log in the sweep; may be None."""
+    """Where training reports: TensorBoard and the run log in the sweep."""
 
     def begin(self, step: int) -> None: ...
     def scalar(self, tag: str, value: float, step: int) -> None: ...
     def images(self, tag: str, images: np.ndarray, step: int) -> None: ...
     def line(self, text: str) -> None: ...
     def close(self) -> None: ...
+
+
+class NoLog:
+    """A training log that keeps nothing: training without a sweep around it."""
+
+    def begin(self, step: int) -> None:
+        pass
+
+    def scalar(self, tag: str, value: float, step: int) -> None:
+        pass
+
+    def images(self, tag: str, images: np.ndarray, step: int) -> None:
+        pass
+
+    def line(self, text: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class TrainingData(NamedTuple):
+    """What a model learns from: an objective's examples (``objectives.training_data``)."""
+
+    train: np.ndarray  # the training places' examples
+    val: np.ndarray  # the validation places' examples: their loss, and the images shown
+
+
+class TrainOptions(NamedTuple):
+    """How one model trains, beside its spec and data."""
+
+    key: jax.Array  # every random draw: the initial weights, the order, the augmentation
+    settings: TrainConfig = TrainConfig()
+    objective: str = "reconstruct"  # vpr_jax.encoders.objectives
+    validate: Validate | None = None  # the validation places' recall@1 of an encode; None:
+    # the validation loss selects
+    checkpoint_dir: Path | None = None  # where epochs are committed; None: nothing saved
+    identity: dict | None = None  # what must match a checkpoint to resume it
+    log: TrainingLog = NoLog()
+    name: str = "auto-encoder"  # how progress lines call the model
+    mesh: Mesh | None = None  # devices each batch is split over
+    fixed: dict | None = None  # a removal's arrays (ae.with_removal)
+    start: Start | None = None  # other starting weights (ae.pca_start; name it in identity)
 
 
 def make_optimizer(settings: TrainConfig) -> optax.GradientTransformation:
@@ -283,7 +326,7 @@ def init_or_restore(
     fresh: TrainState,
     checkpoint_dir: Path | None,
     meta: dict,
-    log: TrainingLog | None,
+    log: TrainingLog,
     name: str,
 ) -> tuple[TrainState, dict | None]:
     """The checkpoint's newest state and its metadata (``done`` says whether training
@@ -298,12 +341,11 @@ def init_or_restore(
             "delete that folder, or set train.checkpoint_dir=PATH to keep both"
         )
     state, saved = checkpoints.restore(checkpoint_dir, fresh)
-    if log is not None:
-        log.line(
-            f"{name}: restored the trained model from {checkpoint_dir}"
-            if saved["done"]
-            else f"{name}: resuming after epoch {state.epoch} (step {state.step})"
-        )
+    log.line(
+        f"{name}: restored the trained model from {checkpoint_dir}"
+        if saved["done"]
+        else f"{name}: resuming after epoch {state.epoch} (step {state.step})"
+    )
     return state, saved
 
 
@@ -312,7 +354,7 @@ def train_epoch(
     state: TrainState,
     train_dev: Array,
     key: jax.Array,
-    log: TrainingLog | None,
+    log: TrainingLog,
     name: str,
 ) -> tuple[TrainState, np.ndarray]:
     """One shuffled pass over the training set; returns the state and each step's loss."""
@@ -327,16 +369,15 @@ def train_epoch(
                 params, opt_state, batch, jax.random.fold_in(epoch_key, s + 1)
             )
             losses.append(metrics["loss"])  # on the device until the epoch ends: no waits
-            if log is not None and epoch == 1 and s == 0 and trainer.settings.augment:
+            if epoch == 1 and s == 0 and trainer.settings.augment:
                 shown, _ = objectives.inputs_and_targets(
                     trainer.objective, sharding.to_host(metrics["inputs"])
                 )
                 log.images("inputs/augmented", _examples(np.asarray(shown), 8), state.step + 1)
             bar.advance()
     losses = np.asarray(jnp.stack(losses)) if losses else np.zeros(0)
-    if log is not None:
-        for i, loss in enumerate(losses):
-            log.scalar("loss/train", float(loss), state.step + 1 + i)
+    for i, loss in enumerate(losses):
+        log.scalar("loss/train", float(loss), state.step + 1 + i)
     state = state._replace(
         params=params, opt_state=opt_state, epoch=epoch, step=state.step + len(losses)
     )
@@ -431,14 +472,13 @@ def score_start(
     val_images: np.ndarray,
     validate: Validate | None,
     mesh: Mesh | None,
-    log: TrainingLog | None,
+    log: TrainingLog,
     name: str,
 ) -> TrainState:
     """Score the starting weights as epoch 0: the best so far until an epoch beats them."""
     scored = score_epoch(trainer, state.params, val_images, validate, mesh)
     state, _, _ = end_epoch(state, scored, trainer.settings)
-    if log is not None:
-        log_epoch(trainer, state, np.zeros(0), scored, val_images, log, name)
+    log_epoch(trainer, state, np.zeros(0), scored, val_images, log, name)
     return state
 
 
@@ -473,62 +513,42 @@ def save_epoch(
     checkpoints.save(checkpoint_dir, state.epoch, state, {**meta, **summary})
 
 
-def fit_autoencoder(
-    spec: ae.Spec,
-    train_images: np.ndarray,
-    val_images: np.ndarray,
-    key: jax.Array,
-    settings: TrainConfig | None = None,
-    *,
-    checkpoint_dir: Path | None = None,
-    identity: dict | None = None,
-    log: TrainingLog | None = None,
-    name: str = "auto-encoder",
-    mesh: Mesh | None = None,
-    objective: str = "reconstruct",
-    validate: Validate | None = None,
-    fixed: dict | None = None,
-    start: Start | None = None,
-) -> TrainResult:
+def fit_autoencoder(spec: ae.Spec, data: TrainingData, options: TrainOptions) -> TrainResult:
     """Train (or resume, or restore) one auto-encoder; returns its best parameters.
 
-    Examples: ``objectives.training_data``. ``validate(encode)`` scores a model by what it
-    is for (the validation places' recall@1 of its codes); the best epoch (0: the starting
-    weights) is kept and early stopping counts epochs without a better one; without it the
-    validation loss selects. ``fixed``: a removal (``ae.with_removal``); ``start``: other
-    starting weights (``ae.pca_start``; name it in ``identity``). With ``checkpoint_dir``
-    an epoch is committed once ``checkpoint_every_s`` passed, the last always: a finished
-    model is restored, an unfinished one resumes; ``identity`` must match the checkpoint's.
-    With a ``mesh`` each batch is split across its devices."""
+    ``options.validate(encode)`` scores a model by what it is for (the validation places'
+    recall@1 of its codes); the best epoch (0: the starting weights) is kept and early
+    stopping counts epochs without a better one; without it the validation loss selects.
+    With a ``checkpoint_dir`` an epoch is committed once ``checkpoint_every_s`` passed, the
+    last always: a finished model is restored, an unfinished one resumes; ``identity`` must
+    match the checkpoint's. With a ``mesh`` each batch is split across its devices."""
     began = time.perf_counter()
-    settings = settings or TrainConfig()
-    train_images, val_images = (np.asarray(x, np.float32) for x in (train_images, val_images))
-    shape = _image_shape(train_images, objective)
+    o, settings = options, options.settings
+    train_images, val_images = (np.asarray(x, np.float32) for x in data)
+    shape = _image_shape(train_images, o.objective)
     trainer, fresh = make_trainer(
-        spec, shape, len(train_images), key, settings, mesh, objective, fixed, start
+        spec, shape, len(train_images), o.key, settings, o.mesh, o.objective, o.fixed, o.start
     )
-    selected_by = SELECT_LOSS if validate is None else SELECT_RECALL
-    meta = checkpoint_meta(spec, shape, identity, objective, selected_by)
-    state, saved = init_or_restore(fresh, checkpoint_dir, meta, log, name)
+    selected_by = SELECT_LOSS if o.validate is None else SELECT_RECALL
+    meta = checkpoint_meta(spec, shape, o.identity, o.objective, selected_by)
+    state, saved = init_or_restore(fresh, o.checkpoint_dir, meta, o.log, o.name)
     if saved is not None and saved["done"]:
         return _result(trainer, state, selected_by, saved["stopped_early"], restored=True)
     resumed_epoch, spent = state.epoch, state.seconds
-    check_batch_splits(trainer.batch_size, mesh)
-    train_dev, state = _on_devices(train_images, state, mesh)
-    if log is not None:
-        log.begin(state.step)
+    check_batch_splits(trainer.batch_size, o.mesh)
+    train_dev, state = _on_devices(train_images, state, o.mesh)
+    o.log.begin(state.step)
     if state.epoch == 0:  # the starting weights compete too
-        state = score_start(trainer, state, val_images, validate, mesh, log, name)
+        state = score_start(trainer, state, val_images, o.validate, o.mesh, o.log, o.name)
     stopped_early, last_save = False, time.perf_counter()
     while state.epoch < settings.epochs:
-        state, losses = train_epoch(trainer, state, train_dev, key, log, name)
-        scored = score_epoch(trainer, state.params, val_images, validate, mesh)
+        state, losses = train_epoch(trainer, state, train_dev, o.key, o.log, o.name)
+        scored = score_epoch(trainer, state.params, val_images, o.validate, o.mesh)
         state, stopped_early, done = end_epoch(state, scored, settings)
-        if log is not None:
-            log_epoch(trainer, state, losses, scored, val_images, log, name)
+        log_epoch(trainer, state, losses, scored, val_images, o.log, o.name)
         state = state._replace(seconds=spent + time.perf_counter() - began)
-        if checkpoint_dir is not None and (done or _due(last_save, settings)):
-            save_epoch(checkpoint_dir, state, meta, done=done, stopped_early=stopped_early)
+        if o.checkpoint_dir is not None and (done or _due(last_save, settings)):
+            save_epoch(o.checkpoint_dir, state, meta, done=done, stopped_early=stopped_early)
             last_save = time.perf_counter()
         if done:
             break

@@ -83,6 +83,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
+from vpr_jax.config import PR_CONVENTIONS
 from vpr_jax.data.ground_truth import GroundTruth, Tolerance
 
 __all__ = [
@@ -99,7 +100,6 @@ __all__ = [
 ]
 
 PRConvention = Literal["vpr_bench", "has_match", "vpr_tutorial"]
-PR_CONVENTIONS: tuple[str, ...] = ("vpr_bench", "has_match", "vpr_tutorial")
 DEFAULT_KS: tuple[int, ...] = (1, 5, 10)
 PRPoints = Float[np.ndarray, " n_points"]
 SCALAR_NAMES: tuple[str, ...] = (

@@ -5,50 +5,37 @@ them (timed fits, warm encoding, the degenerate-descriptor check)."""
 from __future__ import annotations
 
 import time
-import zlib
 from collections.abc import Callable
-from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh
 from jaxtyping import Array, Float
 
 from vpr_jax import host_arrays
 from vpr_jax.data.pair import PairData
-from vpr_jax.data.precomputed import OutsideSide
-from vpr_jax.encoders import pca
-from vpr_jax.encoders.train import TrainingLog
 
 _EPS = 1e-12
 
 
-class PCAFit(NamedTuple):
-    """The pair's PCA fit, shared by its PCA and ICA cells (ICA whitens with it)."""
+class Part(NamedTuple):
+    """A cell's part of a fit's descriptors: its setting and removed count."""
 
-    state: pca.PCAState
-    seconds: float
-
-
-class Fitted(NamedTuple):
-    """What a method fitted, to be saved as an encoder (``vpr_jax.encoders.saved``)."""
-
-    folder: str  # under the pair's folder of train.checkpoint_dir: the run's name, less "_dsNN"
-    encode: str  # how the state encodes: "module:function" (encode(state, images,
-    # removed_pcs), see vpr_jax.encoders.saved), "autoencoder" or "plugin"
-    state: Any  # the pytree of arrays (None for the auto-encoders: their checkpoint holds it)
-    counts: tuple[int, ...] = (0,)  # the removed-PC counts this state serves
+    setting: str  # results.csv's setting: the method's swept settings ("" none)
+    removed_pcs: int  # 0 for a method without the removed-PC axis
+    run: str  # its run's name less the pair and ds: fae_cross_season, ica_n_components=64_k005
 
 
 class Descriptors(NamedTuple):
-    """What one method made of a pair: the descriptors of the database and the queries, for
-    one or more removed-PC counts, and what the fit cost and found."""
+    """What one fit of a method made of a pair: the descriptors of the database, queries
+    and validation places for one or more cells, and what the fit cost and found."""
 
     method: str
-    removed_pcs: tuple[int, ...]  # the cells these descriptors serve (0 without the axis)
-    starts: tuple[int, ...]  # per count: cosine on descriptor features [start:]
+    objective: str  # the auto-encoders' training objective; "" for the other methods
+    seed: int  # the fit's
+    parts: tuple[Part, ...]  # the cells these descriptors serve
+    starts: tuple[int, ...]  # per part: cosine on descriptor features [start:]
     db: jax.Array  # (n_db, d)
     query: jax.Array  # (n_queries, d)
     val_db: jax.Array | None  # (n_val, d): the validation places, database season (None:
@@ -56,36 +43,11 @@ class Descriptors(NamedTuple):
     fit_seconds: float
     encode_ms_per_image: float  # warm (compiled) encoding time
     n_iter: int = 0  # iterations of an iterative fit (0: closed form; epochs when trained)
-    converged: bool = True  # ICA: False when it stopped at ica.max_iter
-    stopped_early: bool = False  # auto-encoders: early stopping ended training before its end
-    basis: tuple[np.ndarray | None, ...] = ()  # per count: (m, 32, 64) images of what the
-    basis_name: str = "removed_components"  # method removed or learned; TensorBoard tag
+    converged: bool = True  # False: an iterative fit stopped at its limit
+    stopped_early: bool = False  # training ended before its last epoch
+    basis: tuple[np.ndarray | None, ...] = ()  # per part: (m, 32, 64) images of what the
+    basis_name: str = "basis"  # method removed or learned; TensorBoard tag basis/<name>
     warning: str | None = None  # one line for the run log (non-convergence, degenerate)
-    objective: str = ""  # the auto-encoders' training objective; "" for the other methods
-    fitted: Fitted | None = None  # what to save, so load_encoder gives the encoder back
-
-
-class MethodContext(NamedTuple):
-    """What a method may need from the runner besides the pair's images and the config."""
-
-    removed_pcs: tuple[int, ...] = (0,)  # counts still to do (pca, diff_pca, ica)
-    objectives: tuple[str, ...] = ("reconstruct",)  # objectives still to do (fae, cae)
-    pca_fit: PCAFit | None = None  # the pair's PCA fit (pca, ica): see fit_pair_pca
-    checkpoint_dir: Path | None = None  # this pair's model folders go under it
-    training_log: Callable[[str], TrainingLog] | None = None  # method name -> its log
-    identity: dict | None = None  # what besides its spec determines a trained model
-    mesh: Mesh | None = None  # devices to split work over (vpr_jax.sharding); None: one
-    outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed sets, read by the plan
-    # (validation database, validation query descriptors, suffix starts) -> the validation
-    # places' recall@1 per start, as the sweep scores them (the runner matches; methods
-    # never do): what the auto-encoders select epochs by and residual inputs choose k by.
-    validate: Callable[[Array, Array, tuple[int, ...]], list[float]] | None = None
-
-
-def method_key(seed: int, name: str) -> jax.Array:
-    """The key a method draws its randomness from: the sweep's seed and the method's name
-    (so adding or dropping another method changes nothing)."""
-    return jax.random.fold_in(jax.random.key(seed), zlib.crc32(name.encode()))
 
 
 def timed(fn: Callable, *args):
@@ -115,7 +77,7 @@ def encode_rows(encode: Callable, images, block_rows: int = ENCODE_BLOCK_ROWS):
     return out
 
 
-def _encode(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array, float]:
+def encode_pair(encode: Callable, pair: PairData) -> tuple[jax.Array, jax.Array, float]:
     """Database and query descriptors, and the warm encoding time in ms per image."""
     encode_rows(encode, pair.db)  # compile for these shapes
     db, seconds_db = timed(encode_rows, encode, pair.db)
@@ -154,38 +116,10 @@ def degenerate_warning(db, query) -> str | None:
     )
 
 
-def describe(
-    method: str,
-    encode: Callable,
-    pair: PairData,
-    *,
-    removed_pcs=(0,),
-    starts=(0,),
-    basis=(None,),
-    warning: str | None = None,
-    **fit,
-) -> Descriptors:
-    """Encode the pair with ``encode`` and add the degenerate-descriptor check's warning."""
-    db, query, ms = _encode(encode, pair)
-    found = "; ".join(w for w in (warning, degenerate_warning(db, query)) if w) or None
-    val_db, val_query = encode_validation(encode, pair)
-    return Descriptors(
-        method=method,
-        removed_pcs=tuple(removed_pcs),
-        starts=tuple(starts),
-        db=db,
-        query=query,
-        val_db=val_db,
-        val_query=val_query,
-        encode_ms_per_image=ms,
-        basis=tuple(basis),
-        warning=found,
-        **fit,
-    )
-
-
-def as_images(vectors: np.ndarray, pair: PairData) -> np.ndarray:
-    return np.asarray(vectors).reshape(len(vectors), *pair.train.shape[1:])
+def as_images(vectors, shape: tuple[int, ...]) -> np.ndarray:
+    """Rows of pixels as images of ``shape``."""
+    vectors = np.asarray(vectors)
+    return vectors.reshape(len(vectors), *shape)
 
 
 @jax.jit

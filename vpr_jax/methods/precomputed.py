@@ -12,25 +12,24 @@ cover, so their validation scores are NaN (one cell: nothing is chosen on them).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 
-from vpr_jax.config import SweepConfig
 from vpr_jax.data.pair import PairData
-from vpr_jax.method_table import MethodInfo
-from vpr_jax.methods.descriptors import Descriptors, MethodContext, degenerate_warning
+from vpr_jax.data.precomputed import OutsideSide
+from vpr_jax.methods.descriptors import Descriptors, Part, degenerate_warning
 
 
-def describe_precomputed(
-    info: MethodInfo, pair: PairData, cfg: SweepConfig, ctx: MethodContext
-) -> Iterator[Descriptors]:
-    """The pair's database, queries and (benchmark-held-out) validation queries, picked by
-    image name from the set the plan read (``ctx.outside``)."""
-    sides = ctx.outside[info.name]
+def precomputed_descriptors(
+    name: str, sides: dict[str, OutsideSide], pair: PairData, seed: int
+) -> Descriptors:
+    """The pair's database, queries and (benchmark-held-out) validation queries of the set
+    ``name``, picked by image name from what the plan read."""
     db, query = sides["database"].of(pair.names.db), sides["queries"].of(pair.names.query)
     held_out = not pair.aligned_training  # validation queries are the benchmark's own
-    yield Descriptors(
-        method=info.name,
-        removed_pcs=(0,),
+    return Descriptors(
+        method=name,
+        objective="",
+        seed=seed,
+        parts=(Part(setting="", removed_pcs=0, run=name),),
         starts=(0,),
         db=db,
         query=query,

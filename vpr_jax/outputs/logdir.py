@@ -1,15 +1,18 @@
 """A sweep's log directory: which configurations may share one, and the checks before a run.
 
 A logdir holds the results of one configuration's *identity*: the keys that determine the
-numbers of every cell. Keys that only add cells (pairs, methods, removed-PC counts, sequence
-lengths) or change presentation and where the same numbers are computed may differ between
-runs into the same logdir; any other difference is refused, so a table never mixes
-configurations. No JAX here: these checks run before it loads.
+numbers of every cell. Keys that only add cells (pairs, methods, removed-PC counts, seeds,
+sequence lengths, values of a method's swept settings) or change presentation and where the
+same numbers are computed may differ between runs into the same logdir; any other
+difference is refused, so a table never mixes configurations. A method's settings are
+compared for the methods both runs have, by the method's own rule (the plan passes it). No
+JAX here.
 """
 
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import yaml
@@ -19,7 +22,7 @@ from omegaconf.errors import OmegaConfBaseException
 from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig, plain, to_dict
 from vpr_jax.errors import UserError
 from vpr_jax.files import lock_folder
-from vpr_jax.method_table import TRAINED, is_plugin, plugin_name
+from vpr_jax.method_table import NAMES
 from vpr_jax.outputs.results import read_results
 
 # Keys that may differ between runs sharing a logdir: they add cells or change presentation,
@@ -30,21 +33,32 @@ EXTENDABLE_KEYS = (
     "season_pairs",
     "methods",
     "removed_pcs",
+    "seeds",
     "logdir",
     "tb",
     "matching",
     "mesh",
 )
-# Keys inside a group that add cells, like removed_pcs: the ds axis, the auto-encoders'
-# objectives. The groups' other keys change the numbers of their cells.
-AXIS_KEYS = {"sequence": ("enabled", "ds"), **{m: ("objective",) for m in TRAINED}}
+# Keys inside a group that add cells, like removed_pcs: the ds axis. The group's other keys
+# change the numbers of its cells.
+AXIS_KEYS = {"sequence": ("enabled", "ds")}
 # The layout of a logdir (config.yaml, results.csv's columns, the runs' files): written as
 # config.yaml's ``format``; a logdir of another format is refused, never read or extended.
-FORMAT = 1
+FORMAT = 2
 
 
 ENCODERS_CSV = "encoders.csv"  # logdir/encoders.csv: every saved encoder and its folder
-LISTING = ("pair", "method", "objective", "removed_pcs", "val_recall_at_1", "folder")
+LISTING = (
+    "pair",
+    "method",
+    "objective",
+    "setting",
+    "removed_pcs",
+    "seed",
+    "val_recall_at_1",
+    "selected",
+    "folder",
+)
 
 
 def fitted_root(cfg: SweepConfig, logdir: Path) -> Path:
@@ -57,9 +71,10 @@ def identity(cfg: SweepConfig | dict) -> dict:
     """The part of a config (or of its saved YAML) that determines the numbers of every cell,
     as plain YAML data."""
     out = to_dict(cfg) if isinstance(cfg, SweepConfig) else plain(cfg)
-    # plugin.<name>.* and precomputed.<name>.* change only their method's cells: compared per
-    # method (method_settings)
-    out = {k: v for k, v in out.items() if k not in (*EXTENDABLE_KEYS, "plugin", "precomputed")}
+    # A method's settings (<name>.*, plugin.<name>.*) and precomputed.<name>.* change only
+    # their method's cells: compared per method (check_same_config)
+    skipped = (*EXTENDABLE_KEYS, *NAMES, "plugin", "precomputed")
+    out = {k: v for k, v in out.items() if k not in skipped}
     out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
     for key in TRAIN_BOOKKEEPING:
         out.get("train", {}).pop(key, None)
@@ -74,13 +89,10 @@ def config_yaml(cfg: SweepConfig) -> str:
     return OmegaConf.to_yaml({"format": FORMAT, **to_dict(cfg)})
 
 
-def method_settings(cfg: SweepConfig | dict) -> dict[str, dict]:
-    """Per user's method of ``methods``, its ``plugin.<name>.*`` settings ({} when none);
-    per set of outside descriptors, its ``precomputed.<name>.*`` files."""
+def outside_settings(cfg: SweepConfig | dict) -> dict[str, dict]:
+    """Per set of outside descriptors, its ``precomputed.<name>.*`` files."""
     out = to_dict(cfg) if isinstance(cfg, SweepConfig) else plain(cfg)
-    names = [plugin_name(m) for m in out.get("methods", []) if is_plugin(m)]
-    plugins = {f"plugin.{n}": out.get("plugin", {}).get(n, {}) for n in names}
-    return {**plugins, **{f"precomputed.{n}": v for n, v in out.get("precomputed", {}).items()}}
+    return {f"precomputed.{n}": v for n, v in out.get("precomputed", {}).items()}
 
 
 def saved_identity(path: Path) -> dict:
@@ -144,16 +156,21 @@ def prepare_logdir(logdir: Path) -> None:
         ) from None
 
 
-def check_same_config(logdir: Path, cfg: SweepConfig) -> None:
+def check_same_config(
+    logdir: Path, cfg: SweepConfig, method_identities: Callable[[dict], dict[str, dict]]
+) -> None:
     """Refuse a logdir whose config.yaml has another identity than ``cfg`` (the config as it
-    will run: counts fitted to the training set)."""
+    will run: counts fitted to the training set), or other settings for a method (or set of
+    outside descriptors) both have; ``method_identities(config as plain data)``: each
+    method's (``experiments.resolve.settings_identities``)."""
     saved = logdir / "config.yaml"
     if not saved.exists():
         return
     now, before_config = identity(cfg), saved_config(saved)
     before = identity(before_config)
     differ = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
-    mine, theirs = method_settings(cfg), method_settings(before_config)
+    mine = {**method_identities(to_dict(cfg)), **outside_settings(cfg)}
+    theirs = {**method_identities(before_config), **outside_settings(before_config)}
     differ += [n for n in sorted(set(mine) & set(theirs)) if mine[n] != theirs[n]]
     if differ:
         raise UserError(

@@ -12,8 +12,8 @@ dashed so they stay apart there.
 
 from __future__ import annotations
 
-from vpr_jax.method_table import NAMES, model_name
-from vpr_jax.outputs.results import ResultRow
+from vpr_jax.method_table import NAMES, model_label
+from vpr_jax.outputs.results import ResultRow, natural_order
 
 # tensorboardColorBlindAssist, the palette of TensorBoard's SCALARS and PR CURVES dashboards
 TB_PALETTE = ("#ff7043", "#0077bb", "#cc3311", "#33bbee", "#ee3377", "#009988", "#bbbbbb")
@@ -21,15 +21,16 @@ _OBJECTIVE_ORDER = ("", "reconstruct", "cross_season", "contrastive")
 
 
 def label_of(row: ResultRow) -> str:
-    """A results row's method as runs and legends name it (``model_name``): ``pca``,
-    ``fae``, ``fae_cross_season``, a user's method or outside set by its name."""
-    return model_name(row.method, row.objective)
+    """A results row's method as the method-by-method runs and the legends name it, every
+    seed of it together (``model_label``): ``pca``, ``fae_cross_season``,
+    ``ica_n_components=64``, a user's method or outside set by its name."""
+    return model_label(row.method, row.objective, row.setting)
 
 
 def _rank(row: ResultRow) -> tuple:
     method = NAMES.index(row.method) if row.method in NAMES else len(NAMES)
     objective = _OBJECTIVE_ORDER.index(row.objective) if row.objective in _OBJECTIVE_ORDER else 9
-    return method, row.method, objective, row.objective
+    return method, row.method, objective, row.objective, natural_order(row.setting)
 
 
 def compare_labels(rows: list[ResultRow]) -> list[str]:

@@ -2,7 +2,9 @@
 matches (at the sweep's shortest sequence length, single images unless told otherwise), and
 recall@1 against the sequence length ds. Built from results.csv rows and each cell's saved
 curve, so a resumed sweep draws every cell, not only those it computed this time. Each
-method has the colour TensorBoard gives its method-by-method run (``palette``)."""
+method has the colour TensorBoard gives its method-by-method run (``palette``). A method
+fitted with several seeds is one line or bar: the mean of its seeds' recall@1 (the bar's
+whisker their range) and the PR curve of all their queries pooled."""
 
 from __future__ import annotations
 
@@ -15,16 +17,35 @@ matplotlib.use("Agg")  # files only; no display on clusters or CI
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vpr_jax.method_table import SWEEPS_REMOVED_PCS  # noqa: E402
 from vpr_jax.outputs.palette import label_of, styles  # noqa: E402
-from vpr_jax.outputs.results import ResultRow, best_objectives, selected_rows  # noqa: E402
+from vpr_jax.outputs.results import (  # noqa: E402
+    ResultRow,
+    best_objectives,
+    selected_rows,
+    sweeps_removed_pcs,
+)
 
 
-def _label(row: ResultRow, best: set[str] = frozenset()) -> str:
-    """The legend's name of a row: its count where it has one; "best" on the objective a
-    method's validation recall prefers (``best_objectives``)."""
-    k = f" (k={row.removed_pcs})" if row.method in SWEEPS_REMOVED_PCS else ""
-    return label_of(row) + k + (" best" if row.run in best else "")
+def _label(rows: list[ResultRow], best: set[str] = frozenset()) -> str:
+    """The legend's name of a method's rows (its seeds): its count where it has one, the
+    number of seeds where there are several; "best" on the objective a method's validation
+    recall prefers (``best_objectives``)."""
+    row = rows[0]
+    k = f" (k={row.removed_pcs})" if sweeps_removed_pcs(row) else ""
+    seeds = f", {len(rows)} seeds" if len(rows) > 1 else ""
+    return label_of(row) + k + seeds + (" best" if row.run in best else "")
+
+
+def by_label(rows: list[ResultRow]) -> dict[tuple[str, str], list[ResultRow]]:
+    """(pair, label) -> its rows: a method's seeds together."""
+    out: dict[tuple[str, str], list[ResultRow]] = {}
+    for row in rows:
+        out.setdefault((row.season_pair, label_of(row)), []).append(row)
+    return out
+
+
+def _mean(rows: list[ResultRow], metric: str) -> float:
+    return float(np.mean([getattr(r, metric) for r in rows]))
 
 
 def _save(fig, path: Path) -> None:
@@ -46,21 +67,23 @@ def _shortest_sequences(rows: list[ResultRow]) -> list[ResultRow]:
     return [r for r in rows if r.ds == shortest]
 
 
-def pr_curves_figure(rows: list[ResultRow], load_curve: Callable[[ResultRow], tuple], path: Path):
+def pr_curves_figure(
+    rows: list[ResultRow], load_curve: Callable[[list[ResultRow]], tuple], path: Path
+):
     """One panel per season pair, one line per method (PCA at its validation-selected
-    removed-PC count)."""
-    best = selected_rows(_shortest_sequences(rows))
-    preferred = best_objectives(best)
+    removed-PC count). ``load_curve(rows)``: (precision, recall) of a method's rows."""
+    best = by_label(selected_rows(_shortest_sequences(rows)))
+    preferred = best_objectives(rows)
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
     style = styles(rows)
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
-        mine = {label_of(r): r for r in best if r.season_pair == pair}
-        for label in (x for x in style if x in mine):
-            row = mine[label]
-            precision, recall = load_curve(row)
-            name = _label(row, preferred)
-            ax.plot(recall, precision, label=f"{name}  AUC {row.auc_pr:.2f}", **style[label])
+        for label in (x for x in style if (pair, x) in best):
+            mine = best[pair, label]
+            precision, recall = load_curve(mine)
+            name = _label(mine, preferred)
+            auc = _mean(mine, "auc_pr")
+            ax.plot(recall, precision, label=f"{name}  AUC {auc:.2f}", **style[label])
         ax.set(title=pair, xlabel="recall", ylabel="precision", xlim=(0, 1.01), ylim=(0, 1.02))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower left")
@@ -70,17 +93,33 @@ def pr_curves_figure(rows: list[ResultRow], load_curve: Callable[[ResultRow], tu
 def correct_matches_figure(rows: list[ResultRow], path: Path):
     """Grouped bars: fraction of correct matches (recall@1) per pair and method (and
     objective)."""
-    best = selected_rows(_shortest_sequences(rows))
+    best = by_label(selected_rows(_shortest_sequences(rows)))
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
     style = styles(rows)
     width = 0.8 / len(style)
     fig, ax = plt.subplots(figsize=(3.0 + 0.25 * len(style) * len(pairs), 3.8))
     for m, (method, line) in enumerate(style.items()):
-        by_pair = {r.season_pair: r for r in best if label_of(r) == method}
+        mine = [best.get((p, method), []) for p in pairs]
         x = np.arange(len(pairs)) + (m - (len(style) - 1) / 2) * width
-        heights = [by_pair[p].recall_at_1 if p in by_pair else np.nan for p in pairs]
+        heights = [_mean(r, "recall_at_1") if r else np.nan for r in mine]
+        spread = np.array(
+            [
+                [h - min(x.recall_at_1 for x in r), max(x.recall_at_1 for x in r) - h]
+                if len(r) > 1
+                else [0.0, 0.0]
+                for h, r in zip(heights, mine, strict=True)
+            ]
+        ).T
         hatch = "//" if line["linestyle"] == "--" else None
-        bars = ax.bar(x, heights, width, label=method, color=line["color"], hatch=hatch)
+        bars = ax.bar(
+            x,
+            heights,
+            width,
+            label=method,
+            color=line["color"],
+            hatch=hatch,
+            yerr=spread if spread.any() else None,
+        )
         ax.bar_label(bars, fmt="%.2f", fontsize=7)
     ax.set_xticks(np.arange(len(pairs)), pairs)
     ax.set(ylabel="fraction of correct matches", ylim=(0, 1.08))
@@ -97,11 +136,11 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
         for method, line in style.items():
-            points = sorted(
-                (r.ds, r.recall_at_1)
-                for r in best
-                if r.season_pair == pair and label_of(r) == method
-            )
+            by_ds: dict[int, list[ResultRow]] = {}
+            for r in best:
+                if r.season_pair == pair and label_of(r) == method:
+                    by_ds.setdefault(r.ds, []).append(r)
+            points = sorted((ds, _mean(r, "recall_at_1")) for ds, r in by_ds.items())
             if points:
                 ax.plot(*zip(*points, strict=True), marker="o", label=method, **line)
         ax.set(

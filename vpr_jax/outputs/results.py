@@ -1,16 +1,26 @@
 """results.csv: one typed row per finished cell, rewritten atomically; the keys that name a
-cell and its group, and the validation selection that marks each group's chosen row."""
+cell and its group, and the validation selection that marks each group's chosen setting.
+
+A group (one pair, method, objective and sequence length) holds a choice per setting and
+removed count; a choice holds a row per seed (``seeds``). The choice with the best mean
+validation recall@1 over its seeds (then validation AUC-PR) is ``selected``, every one of
+its rows; ties go to the first choice in ``choice_order``.
+"""
 
 from __future__ import annotations
 
 import csv
 import io
 import math
+import re
 from pathlib import Path
 from typing import NamedTuple
 
+import numpy as np
+
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
+from vpr_jax.method_table import BASELINE
 
 # The columns of results.csv, in order, with their types: one row per finished cell.
 ResultRow = NamedTuple(
@@ -21,6 +31,7 @@ ResultRow = NamedTuple(
         ("query_season", str),
         ("method", str),
         ("objective", str),  # the auto-encoders' training objective; empty for other methods
+        ("setting", str),  # the method's swept settings, e.g. n_components=64; empty: none
         ("removed_pcs", int),  # 0 for methods without the removed-PC axis
         ("ds", int),  # sequence length; 1 = single images
         ("n_train", int),  # images the encoder was fitted on, both seasons
@@ -34,13 +45,14 @@ ResultRow = NamedTuple(
         ("auc_pr_ci_high", float),
         ("val_recall_at_1", float),  # on the validation places: what chooses the setting
         ("val_auc_pr", float),  # breaks ties of val_recall_at_1 (it saturates on easy routes)
-        ("selected", int),  # 1: the best on validation of its pair x method x objective x ds
+        ("selected", int),  # 1: the best setting on validation of its pair x method x objective
+        # x ds (every seed's row of it)
         ("fit_seconds", float),
         ("encode_ms_per_image", float),
         ("n_iter", int),  # iterations of an iterative fit (epochs for the auto-encoders)
         ("converged", int),  # ICA: 0 when it stopped at ica.max_iter; 1 for the others
         ("stopped_early", int),  # auto-encoders: 1 when early stopping ended the training
-        ("seed", int),
+        ("seed", int),  # the fit's seed (seeds); the data's (seed) for methods that draw none
         ("run", str),  # the cell's TensorBoard run, relative to the logdir
     ],
 )
@@ -55,18 +67,14 @@ class CellKey(NamedTuple):
     season_pair: str
     method: str
     objective: str  # "" for methods without the objective axis
+    setting: str  # "" for a method without swept settings
     removed_pcs: int  # 0 for methods without the removed-PC axis
     ds: int  # sequence length; 1 = single images
+    seed: int
 
 
 def cell_key(row: ResultRow) -> CellKey:
-    return CellKey(
-        season_pair=row.season_pair,
-        method=row.method,
-        objective=row.objective,
-        removed_pcs=row.removed_pcs,
-        ds=row.ds,
-    )
+    return CellKey(**{f: getattr(row, f) for f in CellKey._fields})
 
 
 def _parse(row: dict) -> ResultRow:
@@ -103,7 +111,7 @@ def read_results(path: Path) -> list[ResultRow]:
 
 class GroupKey(NamedTuple):
     """The cells a setting is chosen among: one pair, method, objective and ds, whatever
-    removed-PC count."""
+    setting, removed-PC count and seed."""
 
     season_pair: str
     method: str
@@ -112,26 +120,56 @@ class GroupKey(NamedTuple):
 
 
 def group_key(row: ResultRow) -> GroupKey:
-    return GroupKey(
-        season_pair=row.season_pair, method=row.method, objective=row.objective, ds=row.ds
-    )
+    return GroupKey(**{f: getattr(row, f) for f in GroupKey._fields})
 
 
-def mark_selected(rows: list[ResultRow]) -> list[ResultRow]:
-    """``selected = 1`` on the row of each group (``group_key``) with the best validation
-    recall@1, ties broken by validation AUC-PR, then by the fewest removed PCs (rows without
-    a validation score lose); 0 on every other row."""
-    best: dict[GroupKey, ResultRow] = {}
-    for row in sorted(rows, key=lambda r: r.removed_pcs):
-        key, score = group_key(row), _val_score(row)
-        if key not in best or score > _val_score(best[key]):
-            best[key] = row
-    chosen = {id(r) for r in best.values()}
-    return [r._replace(selected=int(id(r) in chosen)) for r in rows]
+def natural_order(text: str) -> tuple:
+    """``n_components=64`` before ``n_components=128``: numbers compare as numbers."""
+    return tuple((0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", text))
+
+
+def choice_order(row: ResultRow) -> tuple:
+    """The order ties are decided in: settings in natural order, then the fewest removed
+    PCs, then the seed."""
+    return (natural_order(row.setting), row.removed_pcs, row.seed)
+
+
+class Choice(NamedTuple):
+    """One setting and removed count of a group: its rows, one per seed."""
+
+    rows: tuple[ResultRow, ...]
+
+    def mean(self, metric: str) -> float:
+        return float(np.mean([getattr(r, metric) for r in self.rows]))
+
+    def val_score(self) -> tuple[float, float]:
+        """The mean validation recall@1 and AUC-PR over seeds (rows without validation
+        scores count -1: they lose)."""
+        scores = [_val_score(r) for r in self.rows]
+        return tuple(float(np.mean(column)) for column in zip(*scores, strict=True))
 
 
 def _val_score(row: ResultRow) -> tuple[float, float]:
     return tuple(-1.0 if math.isnan(v) else v for v in (row.val_recall_at_1, row.val_auc_pr))
+
+
+def choices(rows: list[ResultRow]) -> dict[GroupKey, list[Choice]]:
+    """Each group's choices in ``choice_order``, each with its rows in seed order."""
+    by_group: dict[GroupKey, dict[tuple, list[ResultRow]]] = {}
+    for row in sorted(rows, key=choice_order):
+        by_group.setdefault(group_key(row), {}).setdefault(
+            (row.setting, row.removed_pcs), []
+        ).append(row)
+    return {g: [Choice(tuple(c)) for c in cs.values()] for g, cs in by_group.items()}
+
+
+def mark_selected(rows: list[ResultRow]) -> list[ResultRow]:
+    """``selected = 1`` on every row of each group's choice with the best mean validation
+    recall@1, then AUC-PR (the first choice on a tie); 0 on every other row."""
+    chosen = {
+        id(r) for group in choices(rows).values() for r in max(group, key=Choice.val_score).rows
+    }
+    return [r._replace(selected=int(id(r) in chosen)) for r in rows]
 
 
 def append_results(path: Path, new_rows: list[ResultRow]) -> list[ResultRow]:
@@ -147,35 +185,49 @@ def append_results(path: Path, new_rows: list[ResultRow]) -> list[ResultRow]:
 
 
 def best_rows(rows: list[ResultRow], metric: str = "recall_at_1") -> list[ResultRow]:
-    """Per (pair, method, objective, ds), the row with the best metric (smallest
-    removed_pcs on ties)."""
-    best: dict[GroupKey, ResultRow] = {}
-    for row in sorted(rows, key=lambda r: r.removed_pcs):
-        key = group_key(row)
-        if key not in best or getattr(row, metric) > getattr(best[key], metric):
-            best[key] = row
-    return list(best.values())
+    """Per (pair, method, objective, ds), the rows of the choice with the best mean metric
+    over seeds (the first on a tie): chosen on what it reports, so optimistic."""
+    return [
+        r for group in choices(rows).values() for r in max(group, key=lambda c: c.mean(metric)).rows
+    ]
 
 
 def selected_rows(rows: list[ResultRow]) -> list[ResultRow]:
-    """The validation-selected row of every pair x method x objective x ds."""
+    """The validation-selected rows of every pair x method x objective x ds."""
     return [r for r in mark_selected(rows) if r.selected]
 
 
 def best_objectives(rows: list[ResultRow]) -> set[str]:
     """The runs of the selected rows that are their method's best objective: per pair,
-    method and ds with more than one objective, the selected row with the best validation
-    recall@1 (then AUC-PR; the first objective on a tie), as ``mark_selected`` ranks."""
-    groups: dict[tuple, list[ResultRow]] = {}
+    method and ds with more than one objective, the selected choice with the best mean
+    validation recall@1 (then AUC-PR; the first objective on a tie)."""
+    groups: dict[tuple, dict[str, list[ResultRow]]] = {}
     for row in selected_rows(rows):
         if row.objective:
-            groups.setdefault((row.season_pair, row.method, row.ds), []).append(row)
-    return {max(group, key=_val_score).run for group in groups.values() if len(group) > 1}
+            key = (row.season_pair, row.method, row.ds)
+            groups.setdefault(key, {}).setdefault(row.objective, []).append(row)
+    return {
+        r.run
+        for group in groups.values()
+        if len(group) > 1
+        for r in max((Choice(tuple(v)) for v in group.values()), key=Choice.val_score).rows
+    }
 
 
 def baseline_of(row: ResultRow, selected: list[ResultRow]) -> ResultRow | None:
-    """The seed's baseline for a selected row: its pair's selected PCA row at the same ds."""
-    for other in selected:
-        if (other.season_pair, other.method, other.ds) == (row.season_pair, "pca", row.ds):
-            return other
-    return None
+    """The baseline of a selected row (``method_table.BASELINE``, the seed's PCA): its
+    pair's selected row at the same ds, of the same seed where it has several."""
+    mine = [
+        other
+        for other in selected
+        if (other.season_pair, other.method, other.ds) == (row.season_pair, BASELINE, row.ds)
+    ]
+    same_seed = [other for other in mine if other.seed == row.seed]
+    return (same_seed or mine or [None])[0]
+
+
+def sweeps_removed_pcs(row: ResultRow) -> bool:
+    """Whether the row's method has the removed-PC axis: its run's name carries the count
+    (``summer-fall/pca_k005``, ``..._k005_ds10``; ``experiments.cells.run_name``)."""
+    ds = f"_ds{row.ds:02d}" if row.ds != 1 else ""
+    return row.run.endswith(f"_k{row.removed_pcs:03d}{ds}")

@@ -1,0 +1,130 @@
+"""cae: the convolutional auto-encoder; its code is the descriptor. Trained as
+``vpr_jax.methods.autoencoder`` describes, once per objective.
+
+``cae.model`` names an architecture (``MODELS``); ``cae.channels``, ``cae.kernel_sizes``,
+``cae.code_channels`` and ``cae.space_to_depth`` override its parts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.errors import UserError
+from vpr_jax.methods import autoencoder
+from vpr_jax.methods.contract import Method, PCAFit, Training, TrainingSet, Validation
+from vpr_jax.shapes import IMAGE_SHAPE
+
+# fast: 2x2 pixel blocks to channels (no convolution at full resolution), two 3x3 levels of
+# 24 and 48 channels, a 4x8x32 = 1,024-value code: about 4 MFLOP an image to encode.
+# calc: the CAE sized like CALC's encoder that the suite began with (5x5x64, 4x4x128, a
+# 8x16x8 = 1,024-value code, about 130 MFLOP), ten times slower to train on a CPU.
+MODELS = {
+    "fast": {
+        "channels": (24, 48),
+        "kernel_sizes": (3, 3),
+        "code_channels": 32,
+        "space_to_depth": 2,
+    },
+    "calc": {
+        "channels": (64, 128),
+        "kernel_sizes": (5, 4),
+        "code_channels": 8,
+        "space_to_depth": 1,
+    },
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """``cae.*``: optionally f x f pixel blocks to channels, then per level a conv (ReLU) +
+    2x2 max-pool, a 3x3 conv to the code; a mirrored decoder."""
+
+    model: str = "fast"  # fast | calc: a named architecture (MODELS); the keys below override
+    channels: tuple[int, ...] | None = None  # widths, one per level
+    kernel_sizes: tuple[int, ...] | None = None  # one per level
+    code_channels: int | None = None  # code = (32 / 2^levels / f) x (64 / ...) x this values
+    space_to_depth: int | None = None  # f: f x f pixel blocks become channels first (1: none)
+    standardise: bool = True  # each image to zero mean, std 1/4 before the encoder
+    epochs: int | None = None  # overrides train.epochs for the CAE
+    objective: tuple[str, ...] = ("reconstruct", "cross_season")  # as fae.objective
+    input: str = "pixels"  # pixels | residual: as fae.input
+
+    def __post_init__(self):
+        autoencoder.check_common("cae", self.objective, self.input, self.epochs)
+        if self.model not in MODELS:
+            raise UserError(f"cae.model={self.model} is unknown: use {' or '.join(MODELS)}")
+        a = architecture(self)
+        if not len(a["channels"]) == len(a["kernel_sizes"]) >= 1:
+            raise UserError(
+                f"cae.channels={list(a['channels'])} and cae.kernel_sizes="
+                f"{list(a['kernel_sizes'])} need one entry per level, at least one level"
+            )
+        if min(*a["channels"], *a["kernel_sizes"], a["code_channels"]) < 1:
+            raise UserError("cae.channels, cae.kernel_sizes and cae.code_channels must be >= 1")
+        h, w = IMAGE_SHAPE
+        f = a["space_to_depth"]
+        down = 2 ** len(a["channels"]) * f
+        if f < 1 or h % down or w % down:
+            raise UserError(
+                f"cae: {len(a['channels'])} levels after {f}x{f} blocks do not tile {h}x{w} "
+                "images: use fewer levels or cae.space_to_depth=1"
+            )
+
+
+def architecture(settings) -> dict:
+    """The named model's parts with the ones set overriding them."""
+    return {
+        key: default if getattr(settings, key) is None else getattr(settings, key)
+        for key, default in MODELS[settings.model].items()
+    }
+
+
+def fit(
+    train,
+    aligned,
+    key,
+    *,
+    validation: Validation,
+    training: Training,
+    mesh,
+    pca_fit: PCAFit | None = None,
+    **settings,
+) -> ae.ModelState:
+    a = architecture(Settings(**{**settings, "objective": (settings["objective"],)}))
+    model = autoencoder.Model(
+        name="cae",
+        spec=lambda removed: ae.CAESpec(
+            channels=tuple(a["channels"]),
+            kernel_sizes=tuple(a["kernel_sizes"]),
+            code_channels=a["code_channels"],
+            space_to_depth=a["space_to_depth"],
+            standardise=settings["standardise"],
+            removed=removed,
+        ),
+        start=None,
+        objective=settings["objective"],
+        epochs=settings["epochs"],
+        settings=settings,
+    )
+    return autoencoder.fit_model(
+        model, train, key, validation=validation, training=training, mesh=mesh, pca_fit=pca_fit
+    )
+
+
+def check(settings: Settings, training: TrainingSet, log) -> Settings:
+    return autoencoder.without_aligned_places("cae", settings, training, log)
+
+
+method = Method(
+    fit=fit,
+    encode=ae.encode_state,
+    settings=Settings,
+    uses=("validation", "training", "mesh", "pca_fit"),
+    random=True,
+    variants="objective",
+    check=check,
+    check_devices=autoencoder.check_devices,
+    pca_components=autoencoder.pca_components,
+    report=autoencoder.report,
+)

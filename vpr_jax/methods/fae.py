@@ -1,0 +1,111 @@
+"""fae: the fundamental auto-encoder, one hidden layer (2,048 pixels -> ``hidden`` ReLU units
+-> 2,048); the hidden layer is the descriptor. Trained as ``vpr_jax.methods.autoencoder``
+describes, once per objective."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+
+from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.errors import UserError
+from vpr_jax.methods import autoencoder
+from vpr_jax.methods.contract import Method, PCAFit, Report, Training, TrainingSet, Validation
+
+INITS = ("random", "pca", "whitened_pca")  # how the weights start: fae.init
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """``fae.*``."""
+
+    hidden: int = 256  # code length: the place descriptor
+    epochs: int | None = None  # overrides train.epochs for the FAE (it trains ~100x faster)
+    # One cell per objective: reconstruct (the seed's), cross_season and/or contrastive
+    # (see vpr_jax.encoders.objectives); one value or a list.
+    objective: tuple[str, ...] = ("reconstruct", "cross_season")
+    # pixels: the images; residual: the images less the pair's leading k principal
+    # components, k chosen for PCA on the validation places (the code cannot be spent on
+    # the condition PCA change removal throws away).
+    input: str = "pixels"
+    # random: drawn weights; pca: the linear start, the hidden layer at the PCA solution of
+    # its own inputs for hidden // 2 components, each unit beside its negative
+    # (vpr_jax.encoders.autoencoders.pca_start): training keeps only what beats it;
+    # whitened_pca: the same with every component scaled to unit variance.
+    init: str = "random"
+    # Subtracted from every pixel before the hidden layer; 0 is the seed's layer, on which
+    # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
+    input_centre: float = 0.5
+    standardise: bool = True  # each image to zero mean, std 1/4 instead (input_centre unused)
+
+    def __post_init__(self):
+        autoencoder.check_common("fae", self.objective, self.input, self.epochs)
+        checks = (
+            (self.init in INITS, f"fae.init={self.init} is unknown: use {', '.join(INITS)}"),
+            (self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1"),
+            (
+                0 <= self.input_centre <= 1,
+                f"fae.input_centre={self.input_centre} is not a grey level in [0, 1]: use "
+                "0.5 (mid-grey) or 0 (the seed's layer)",
+            ),
+        )
+        for ok, message in checks:
+            if not ok:
+                raise UserError(message)
+
+
+def fit(
+    train,
+    aligned,
+    key,
+    *,
+    validation: Validation,
+    training: Training,
+    mesh,
+    pca_fit: PCAFit | None = None,
+    **settings,
+) -> ae.ModelState:
+    s = settings
+    model = autoencoder.Model(
+        name="fae",
+        spec=lambda removed: ae.FAESpec(
+            hidden=s["hidden"],
+            centre=s["input_centre"],
+            standardise=s["standardise"],
+            removed=removed,
+        ),
+        start=None
+        if s["init"] == "random"
+        else functools.partial(ae.pca_start, images=train, whiten=s["init"] == "whitened_pca"),
+        objective=s["objective"],
+        epochs=s["epochs"],
+        settings=settings,
+    )
+    return autoencoder.fit_model(
+        model, train, key, validation=validation, training=training, mesh=mesh, pca_fit=pca_fit
+    )
+
+
+def _report(state: ae.ModelState, settings: dict) -> Report:
+    """What each hidden unit looks for: its weights as an image."""
+    return autoencoder.report(state, settings, np.asarray(state.params["encoder"]["kernel"]).T)
+
+
+def check(settings: Settings, training: TrainingSet, log) -> Settings:
+    return autoencoder.without_aligned_places("fae", settings, training, log)
+
+
+method = Method(
+    fit=fit,
+    encode=ae.encode_state,
+    settings=Settings,
+    uses=("validation", "training", "mesh", "pca_fit"),
+    random=True,
+    variants="objective",
+    check=check,
+    check_devices=autoencoder.check_devices,
+    pca_components=autoencoder.pca_components,
+    report=_report,
+)

@@ -1,0 +1,61 @@
+"""lda: within-place whitening inside the leading principal components of the pair's shared
+PCA fit: a place's two seasons vary equally in every direction (a learnt Mahalanobis metric,
+``vpr_jax.encoders.lda``)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from vpr_jax.encoders import lda, pca
+from vpr_jax.errors import UserError
+from vpr_jax.methods.contract import Method, PCAFit, Report, TrainingSet
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """``lda.*``."""
+
+    n_components: int = 200  # leading principal components of the pair's PCA fit whitened in
+    shrinkage: float = 0.1  # towards trace/m x identity: 0 plain whitening, 1 PCA coordinates
+
+    def __post_init__(self):
+        if self.n_components < 1:
+            raise UserError(f"lda.n_components={self.n_components} must be >= 1")
+        if not 0 <= self.shrinkage <= 1:
+            raise UserError(
+                f"lda.shrinkage={self.shrinkage} is not in [0, 1]: use e.g. 0.1 (0: plain "
+                "whitening)"
+            )
+
+
+def fit(train, aligned, key, *, pca_fit: PCAFit, n_components: int, shrinkage: float):
+    """In all the components the training images have, when they have fewer."""
+    m = min(n_components, pca.rank_limit(len(train), train[0].size))
+    return lda.fit_lda(pca_fit.state, *aligned, m, shrinkage)
+
+
+def encode(state: lda.LDAState, images):
+    return lda.encode(state, images)
+
+
+def check(settings: Settings, training: TrainingSet, log) -> Settings:
+    limit = training.pca_limit
+    if settings.n_components > limit:
+        log(
+            f"note: lda.n_components={settings.n_components} exceeds the {limit} principal "
+            f"components of {training.n_images} training images: lda whitens in all {limit}"
+        )
+    return settings
+
+
+method = Method(
+    fit=fit,
+    encode=encode,
+    settings=Settings,
+    needs_alignment=True,
+    uses=("pca_fit",),
+    random=False,
+    check=check,
+    pca_components=lambda s, training: s.n_components,
+    report=lambda state, settings: Report(basis=state.transform, basis_name="invariant_directions"),
+)

@@ -1,0 +1,168 @@
+"""A method's settings as a sweep gives them (``ica.n_components=64``,
+``plugin.edges.skip=[0,2,5]``): the method's ``settings`` dataclass names them, fills the
+defaults and checks every value; a list given for a setting is a sweep axis.
+
+- a setting of any type but a tuple: a list is an axis (``ica.n_components=[64,128]``);
+- a tuple setting (``cae.channels``): a list is one value, a list of lists an axis;
+- a method without a dataclass (a user's method without ``settings``): any list is an axis,
+  and a list of lists passes lists.
+
+``expand`` gives every combination of the axes' values (the cross product), each checked by
+the dataclass, with its label (``n_components=64``): results.csv's ``setting`` column and
+part of the names of its runs and folders. JAX-free.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import itertools
+import typing
+from typing import Any, NamedTuple
+
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from vpr_jax.errors import UserError
+
+
+class Combination(NamedTuple):
+    """One combination of a method's settings."""
+
+    settings: Any  # the settings dataclass, checked (a dict for a method without one)
+    values: dict[str, Any]  # every setting by name: the keywords of fit (and of encode)
+    swept: tuple[tuple[str, Any], ...]  # (name, value) of the swept settings, in field order
+
+    @property
+    def label(self) -> str:
+        return label(self.swept)
+
+
+def label(swept: tuple[tuple[str, Any], ...]) -> str:
+    """``n_components=64``, ``hidden=256 init=pca``: the swept settings, readable."""
+    return " ".join(f"{k}={_text(v)}" for k, v in swept)
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, list | tuple):
+        return "[" + ",".join(_text(v) for v in value) + "]"
+    return str(value)
+
+
+@functools.cache
+def _tuple_fields(schema: type) -> frozenset[str]:
+    """The settings of ``schema`` whose values are tuples (a list given is one value)."""
+    hints = typing.get_type_hints(schema)
+    out = set()
+    for f in dataclasses.fields(schema):
+        kinds = typing.get_args(hints[f.name]) or (hints[f.name],)
+        if any(typing.get_origin(k) is tuple or k is tuple for k in (hints[f.name], *kinds)):
+            out.add(f.name)
+    return frozenset(out)
+
+
+def is_axis(schema: type | None, name: str, value: Any) -> bool:
+    """Whether ``value`` given for setting ``name`` is a sweep axis (see the module)."""
+    if not isinstance(value, list | tuple):
+        return False
+    if schema is not None and name in _tuple_fields(schema):
+        return len(value) > 0 and all(isinstance(v, list | tuple) for v in value)
+    return True
+
+
+def _field_names(schema: type | None, given: dict) -> list[str]:
+    """Settings in a stable order: the dataclass's, or by name (a command line's order of
+    keys must not rename a setting)."""
+    if schema is None:
+        return sorted(given)
+    return [f.name for f in dataclasses.fields(schema)]
+
+
+def _coerce(schema: type, given: dict) -> dict:
+    """A tuple setting given one value (``fae.objective=cross_season``) or a comma list
+    without brackets (``cae.channels=16,32``) as a list."""
+    out = dict(given)
+    for name in _tuple_fields(schema) & set(out):
+        value = out[name]
+        if isinstance(value, str) and "," in value:
+            out[name] = [v.strip() for v in value.split(",") if v.strip()]
+        elif value is not None and not isinstance(value, list | tuple):
+            out[name] = [value]
+    return out
+
+
+def _checked(schema: type | None, values: dict, group: str) -> Any:
+    """The dataclass of ``values`` (its __post_init__ checks them); UserError naming the
+    setting for an unknown name or a wrong type."""
+    if schema is None:
+        return dict(values)
+    known = _field_names(schema, values)
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise UserError(
+            f"{group}.{unknown[0]} is unknown: {group}'s settings are {', '.join(known)} "
+            "(docs/config.md)"
+        )
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(schema), values)
+        return OmegaConf.to_object(merged)
+    except OmegaConfBaseException as err:
+        key = getattr(err, "key", None) or getattr(err, "full_key", "") or ""
+        first = str(err).splitlines()[0]
+        raise UserError(f"bad config: {first} (key {group}.{key}): see docs/config.md") from None
+
+
+def expand(schema: type | None, given: dict, group: str) -> list[Combination]:
+    """Every combination of the settings ``given`` for ``group`` (``ica``,
+    ``plugin.edges``): defaults from ``schema`` where not given, one combination per element
+    of the cross product of the axes, each checked."""
+    given = _coerce(schema, given) if schema is not None else dict(given)
+    axes = [n for n in _field_names(schema, given) if n in given and is_axis(schema, n, given[n])]
+    out = []
+    for values in itertools.product(*(given[n] for n in axes)):
+        chosen = {**given, **{n: _plain(v) for n, v in zip(axes, values, strict=True)}}
+        settings = _checked(schema, chosen, group)
+        every = settings if schema is None else as_dict(settings)
+        swept = tuple((n, every[n]) for n in axes)
+        out.append(Combination(settings=settings, values=every, swept=swept))
+    return out
+
+
+def _plain(value: Any) -> Any:
+    return [_plain(v) for v in value] if isinstance(value, list | tuple) else value
+
+
+def as_dict(settings: Any) -> dict[str, Any]:
+    """A settings dataclass's values by name (a dict is itself)."""
+    if isinstance(settings, dict):
+        return dict(settings)
+    return {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
+
+
+def effective(schema: type | None, combinations: list[Combination], given: dict) -> dict:
+    """What the sweep runs, as config.yaml records it: every setting's value (defaults
+    filled in), each axis as the list of its values."""
+    if schema is None:
+        return dict(given)
+    out = dict(combinations[0].values)
+    for name, _ in combinations[0].swept:
+        out[name] = [_plain(c.values[name]) for c in _unique(combinations, name)]
+    return out
+
+
+def _unique(combinations: list[Combination], name: str) -> list[Combination]:
+    seen, out = [], []
+    for c in combinations:
+        if c.values[name] not in seen:
+            seen.append(c.values[name])
+            out.append(c)
+    return out
+
+
+def identity(schema: type | None, effective_settings: dict, extendable: str = "") -> dict:
+    """The part of a method's settings that decides its cells' numbers: every setting that
+    is not an axis (nor the ``extendable`` one, the variants' list), and which settings
+    are axes. Values added to an axis, or to the variants, only add cells."""
+    axes = sorted(n for n, v in effective_settings.items() if is_axis(schema, n, v))
+    fixed = {n: v for n, v in effective_settings.items() if n not in axes and n != extendable}
+    return {**fixed, "axes": axes}
