@@ -1,5 +1,6 @@
 import contextlib
 import fcntl
+import io
 import json
 import os
 import shlex
@@ -18,20 +19,14 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 REPO = Path(__file__).resolve().parent.parent
 
+# The small runs of the end-to-end tests, in one place (a later key=value overrides an
+# earlier one): routes, and auto-encoders small enough to train in a second.
+TINY_ROUTE = ["data.n_frames=400", "split.n_train=150", "split.n_test=60", "split.gap=10"]
+SMALL_ROUTE = ["data.n_frames=700", "split.n_train=300", "split.n_test=120", "split.gap=20"]
+TINY_MODELS = ["fae.hidden=32", "cae.channels=[4,8]", "cae.code_channels=2"]
 # A small but complete sweep: the three default pairs, every method, three removed-PC counts
 # and tiny auto-encoders trained for two epochs.
-SMALL = [
-    "data.n_frames=700",
-    "split.n_train=300",
-    "split.n_test=120",
-    "split.gap=20",
-    "removed_pcs=[0,5,20]",
-    "fae.hidden=32",
-    "cae.channels=[4,8]",
-    "cae.code_channels=2",
-    "train.epochs=2",
-    "fae.epochs=2",
-]
+SMALL = [*SMALL_ROUTE, "removed_pcs=[0,5,20]", *TINY_MODELS, "train.epochs=2", "fae.epochs=2"]
 
 
 # Every subprocess a test starts ends within this (the per-test limit in pyproject.toml is
@@ -140,6 +135,28 @@ def run_cli(*args: str, env: dict | None = None, timeout: float = PROCESS_TIMEOU
     )
 
 
+def run_here(*args: str) -> subprocess.CompletedProcess:
+    """``python -m experiments.sweep ARGS`` run by its ``main`` in this process, its output
+    captured: for refusals, where what is tested is the line and the files left alone, not
+    the command line's start (a fresh interpreter costs each case JAX's import). Models are
+    checkpointed next to the logdir, as ``run_cli`` does."""
+    from experiments import sweep
+
+    logdirs = [a.split("=", 1)[1] for a in args if a.startswith("logdir=")]
+    if logdirs and not any(a.startswith("train.checkpoint_dir=") for a in args):
+        args = (*args, f"train.checkpoint_dir={Path(logdirs[-1]).parent / 'checkpoints'}")
+    out, err = io.StringIO(), io.StringIO()
+    handler = signal.getsignal(signal.SIGTERM)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = sweep.main(list(args))
+    finally:
+        signal.signal(signal.SIGTERM, handler)
+    return subprocess.CompletedProcess(
+        ["experiments.sweep", *args], code, out.getvalue(), err.getvalue()
+    )
+
+
 def assert_one_line_error(
     proc: subprocess.CompletedProcess, *words: str, returncode: int = 2
 ) -> str:
@@ -227,12 +244,13 @@ def shared_folder(tmp_path_factory, name: str, make: Callable[[Path], None]) -> 
     return folder
 
 
-def shared_sweep(tmp_path_factory, name: str, *args: str):
-    """``(logdir, the finished process)`` of ``run_cli(*args)`` run once per session into a
-    ``shared_folder`` (read-only for every test)."""
+def shared_sweep(tmp_path_factory, name: str, *args: str, env: dict | None = None):
+    """``(logdir, the finished process)`` of ``run_cli(*args)`` (``env``: added to its
+    environment) run once per session into a ``shared_folder`` (read-only for every
+    test)."""
 
     def sweep(folder: Path) -> None:
-        proc = run_cli(*args, f"logdir={folder / 'runs'}")
+        proc = run_cli(*args, f"logdir={folder / 'runs'}", env=env)
         assert proc.returncode == 0, proc.stderr
         record = [proc.args, proc.returncode, proc.stdout, proc.stderr]
         (folder / "process.json").write_text(json.dumps(record))
@@ -256,6 +274,21 @@ def method_settings(cfg, name: str):
     from vpr_jax.method_table import METHODS
 
     return resolve(METHODS[name], given_settings(cfg, METHODS[name])).combinations[0].settings
+
+
+def suffix_cosine(query_desc, db_desc, starts: tuple[int, ...]):
+    """Cosine similarity on descriptor suffixes ``[start:]`` for every start, (s, nq, ndb),
+    from the one pass the matcher makes (``matching._suffix_dots``): what the tests compare
+    with the cosine of each suffix on its own."""
+    import jax.numpy as jnp
+
+    from vpr_jax.evaluation.matching import _suffix_dots
+
+    scores = {
+        i: dot * inv_q[:, None] * inv_db[None, :]
+        for i, dot, inv_q, inv_db in _suffix_dots(query_desc, db_desc, starts)
+    }
+    return jnp.stack([scores[i] for i in range(len(starts))])
 
 
 def numpy_cosine(q, d):

@@ -187,3 +187,78 @@ def test_only_the_method_table_lists_the_methods():
                 if len(names) >= 2:
                     lists.append(f"{path.relative_to(REPO)}:{node.lineno} {sorted(names)}")
     assert not lists, f"use vpr_jax.method_table instead: {lists}"
+
+
+def _name_lookups(tree: ast.Module, names: set[str]) -> list[tuple[int, str]]:
+    """(line, name) of every method name used as a string to decide something: compared
+    (``==``, ``in``, also inside a tuple or list compared with), a subscript (``d["pca"]``),
+    a dict key, or the key of ``.get``, ``getattr``, ``hasattr`` or ``.index``."""
+
+    def constants(node) -> list[str]:
+        if isinstance(node, ast.Constant) and node.value in names:
+            return [node.value]
+        if isinstance(node, ast.Tuple | ast.List | ast.Set):
+            return [v for item in node.elts for v in constants(item)]
+        return []
+
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Compare):
+            used = [v for side in (node.left, *node.comparators) for v in constants(side)]
+        elif isinstance(node, ast.Subscript):
+            used = constants(node.slice)
+        elif isinstance(node, ast.Dict):
+            used = [v for key in node.keys if key is not None for v in constants(key)]
+        elif isinstance(node, ast.Call):
+            func = ast.unparse(node.func)
+            looks_up = func in ("getattr", "hasattr") or func.endswith((".get", ".index"))
+            used = [v for a in node.args for v in constants(a)] if looks_up else []
+        else:
+            used = []
+        found += [(node.lineno, v) for v in used]
+    return found
+
+
+def test_no_module_decides_by_a_method_s_name():
+    """The runner asks a method's declarations, never its name: outside the method table
+    and the method's own module (``vpr_jax/methods/<name>.py``), no module of vpr_jax/,
+    experiments/ or benchmarks/ compares a method name as a string, or looks it up by one
+    (a dict key, a subscript, ``getattr``)."""
+    from vpr_jax.method_table import NAMES
+
+    paths = [*REPO.glob("vpr_jax/**/*.py"), *REPO.glob("experiments/**/*.py")]
+    paths += [*REPO.glob("benchmarks/*.py")]
+    found = []
+    for path in paths:
+        if path.name == "method_table.py":
+            continue
+        others = set(NAMES) - {path.stem} if path.parent.name == "methods" else set(NAMES)
+        found += [
+            f"{path.relative_to(REPO)}:{line} {name!r}"
+            for line, name in _name_lookups(ast.parse(path.read_text()), others)
+        ]
+    assert not found, f"declare it on the method instead (vpr_jax.methods.contract): {found}"
+
+
+def test_the_name_check_sees_what_it_forbids():
+    """Each form the check forbids, written once, is caught; a name in a message is not."""
+    code = """
+if method == "pca": pass
+if "lda" in cfg.methods: pass
+if m in ("ica", "x"): pass
+x = table["fae"]
+y = {"cae": 1}
+z = getattr(cfg, "ica")
+w = rows.get("diff_pca")
+print(f"pca says {method}", "lda")
+"""
+    found = _name_lookups(ast.parse(code), {"pca", "lda", "ica", "fae", "cae", "diff_pca"})
+    assert sorted(name for _, name in found) == [
+        "cae",
+        "diff_pca",
+        "fae",
+        "ica",
+        "ica",
+        "lda",
+        "pca",
+    ]

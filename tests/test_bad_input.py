@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from tests.conftest import SMALL, assert_one_line_error, run_cli
+from tests.conftest import SMALL, TINY_ROUTE, assert_one_line_error, run_cli, run_here
 from tests.inputs import write_release, write_video
 from vpr_jax.config import parse_config, to_dict
 from vpr_jax.outputs.logdir import config_yaml
@@ -146,8 +146,7 @@ def test_bad_data(case, tmp_path):
     assert _snapshot(logdir) == {"keep.txt": hashlib.sha256(b"mine").hexdigest()}
 
 
-# The smallest route that gets past the data checks to the methods.
-TINY = ["data.n_frames=400", "split.n_train=150", "split.n_test=60", "split.gap=10"]
+TINY = TINY_ROUTE  # the smallest route that gets past the data checks to the methods
 CONFIG_CASES = {
     "unknown key": (["method=raw"], ["method"]),
     "frame range for the built-in route": (
@@ -209,8 +208,9 @@ CONFIG_CASES = {
 
 @pytest.mark.parametrize("case", CONFIG_CASES)
 def test_bad_config(case, tmp_path):
+    """In this process (the command line itself: test_bad_data's and the cases below)."""
     args, words = CONFIG_CASES[case]
-    proc = run_cli(*args, f"logdir={tmp_path / 'runs'}")
+    proc = run_here(*args, f"logdir={tmp_path / 'runs'}")
     assert_one_line_error(proc, *words)
     assert _snapshot(tmp_path / "runs") == {}
 

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import assert_one_line_error, run_cli
+from tests.conftest import assert_one_line_error, run_cli, run_here
 from tests.inputs import N_PLACES, read_grey, u8, write_release, write_vpr_bench
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.outputs.results import read_results
@@ -251,7 +251,7 @@ def test_bad_vpr_bench_layouts_are_one_line(route, tmp_path, case):
     write_vpr_bench(root, route)
     spoil(root)
     source, *rest = args
-    proc = run_cli(
+    proc = run_here(
         f"data.source={source}", f"data.root={root}", *rest, f"logdir={tmp_path / 'runs'}"
     )
     assert_one_line_error(proc, *words)
@@ -299,7 +299,7 @@ def test_bad_positions_layouts_are_one_line(route, tmp_path, case):
     root = tmp_path / "drive"
     write_positions(root, route, np.random.default_rng(1))
     spoil(root)
-    proc = run_cli(
+    proc = run_here(
         "data.source=positions", f"data.root={root}", *args, f"logdir={tmp_path / 'runs'}"
     )
     assert_one_line_error(proc, *words)

@@ -161,7 +161,10 @@ def test_a_saved_config_carries_its_format_and_reads_back_as_its_identity(tmp_pa
     import yaml
 
     from vpr_jax.errors import UserError
-    from vpr_jax.outputs.logdir import FORMAT, config_yaml, saved_identity
+    from vpr_jax.outputs.logdir import FORMAT, config_yaml, saved_config
+
+    def saved_identity(path):
+        return identity(saved_config(path))
 
     cfg = parse_config(["tolerance=4", "methods=[raw,pca]"])
     path = tmp_path / "config.yaml"

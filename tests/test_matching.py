@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from tests.conftest import numpy_cosine as _numpy_cosine
+from tests.conftest import suffix_cosine
 from vpr_jax.evaluation.matching import (
     block_top_k,
     cosine_similarity,
     lane_width,
-    suffix_cosine,
     top_k_matches,
 )
 

@@ -7,7 +7,12 @@ import pytest
 from flax import nnx
 from omegaconf import OmegaConf
 
-from tests.conftest import assert_one_line_error, method_settings, run_cli, tail_validation
+from tests.conftest import (
+    assert_one_line_error,
+    method_settings,
+    run_here,
+    tail_validation,
+)
 from tests.inputs import frame_image, write_release
 from vpr_jax.config import PRESET_DIR, SplitConfig, TrainConfig, parse_config
 from vpr_jax.data.augment import AugmentConfig
@@ -160,7 +165,7 @@ def test_an_objective_list_is_one_value_or_many():
     ],
 )
 def test_bad_objective_or_model_is_one_line(args, words, tmp_path):
-    assert_one_line_error(run_cli(*args, f"logdir={tmp_path / 'runs'}"), *words)
+    assert_one_line_error(run_here(*args, f"logdir={tmp_path / 'runs'}"), *words)
 
 
 def test_the_real_preset_sets_no_data_keys_and_its_logdir_names_the_source():

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from sklearn.decomposition import PCA
 
+from tests.conftest import suffix_cosine
 from vpr_jax.encoders import pca
-from vpr_jax.evaluation.matching import cosine_similarity, suffix_cosine
+from vpr_jax.evaluation.matching import cosine_similarity
 
 
 def _data(n, d, seed=0):

@@ -4,6 +4,7 @@ is one line, with the finished cells kept."""
 
 import json
 import os
+import shutil
 import sys
 import textwrap
 from pathlib import Path
@@ -17,11 +18,15 @@ from experiments.fitting import checked_encode
 from experiments.resolve import resolve_methods, settings_identities
 from tests.conftest import (
     REPO,
+    TINY_ROUTE,
     assert_one_line_error,
     env_with_repo,
     read_run,
     run_cli,
+    run_here,
     run_process,
+    shared_folder,
+    shared_sweep,
 )
 from vpr_jax.config import parse_config
 from vpr_jax.errors import UserError
@@ -64,13 +69,7 @@ class centred_pixels:
     def encode(state, images):
         return images
 """
-SMALL_ROUTE = [
-    "data.n_frames=400",
-    "split.n_train=150",
-    "split.n_test=60",
-    "split.gap=10",
-    "season_pairs=summer-fall",
-]
+SMALL_ROUTE = [*TINY_ROUTE, "season_pairs=summer-fall"]
 NOT_COMPARED = {"method", "run", "fit_seconds", "encode_ms_per_image"}
 
 
@@ -81,19 +80,30 @@ def _module(folder: Path, name: str, source: str) -> dict:
     return {"PYTHONPATH": os.pathsep.join([str(REPO), str(folder)])}
 
 
-def test_a_method_of_your_own_runs_like_a_built_in_one(tmp_path):
-    env = _module(tmp_path / "mine", "my_methods", CENTRED_PIXELS)
-    record, logdir = tmp_path / "fit.jsonl", tmp_path / "runs"
-    proc = run_cli(
+@pytest.fixture(scope="session")
+def own(tmp_path_factory):
+    """(logdir, its arguments, the environment, the fit's record, the module's folder) of
+    one sweep per session of raw pixels and a re-implementation of them as a user's
+    method (read-only for every test)."""
+    folder = shared_folder(
+        tmp_path_factory, "own_method", lambda f: _module(f / "mine", "my_methods", CENTRED_PIXELS)
+    )
+    env = {"PYTHONPATH": os.pathsep.join([str(REPO), str(folder / "mine")])}
+    record = folder / "fit.jsonl"
+    args = [
         *SMALL_ROUTE,
         "methods=[raw,my_methods:centred_pixels]",
         f"plugin.centred_pixels.record={record}",
         "plugin.centred_pixels.scale=3",
         "preprocess=patchnorm",
-        f"logdir={logdir}",
-        env=env,
-    )
-    assert proc.returncode == 0, proc.stderr
+        f"train.checkpoint_dir={folder / 'checkpoints'}",
+    ]
+    logdir, _ = shared_sweep(tmp_path_factory, "own_method_sweep", *args, env=env)
+    return logdir, [*args, f"logdir={logdir}"], env, record, folder / "mine"
+
+
+def test_a_method_of_your_own_gives_the_numbers_of_the_built_in_it_copies(own):
+    logdir, _, _, record, _ = own
     rows = {r.method: r for r in read_results(logdir / "results.csv")}
     assert set(rows) == {"raw", "centred_pixels"}
     mine, raw = rows["centred_pixels"], rows["raw"]
@@ -108,7 +118,11 @@ def test_a_method_of_your_own_runs_like_a_built_in_one(tmp_path):
     assert received["train"] == [2 * 125, 32, 64]
     assert received["aligned"] == [[125, 32, 64], [125, 32, 64]]
     assert received["seasons_differ"] and received["scale"] == 3 and received["key"] == "uint32"
-    # The summary run and every figure show it beside raw.
+
+
+def test_a_method_of_your_own_is_in_the_summary_and_the_figures(own):
+    logdir, *_ = own
+    raw = next(r for r in read_results(logdir / "results.csv") if r.method == "raw")
     summary = read_run(logdir / "summary" / "summer-fall")
     for method in ("raw", "centred_pixels"):
         (point,) = summary.Scalars(f"metrics/recall_at_1/{method}")
@@ -117,16 +131,13 @@ def test_a_method_of_your_own_runs_like_a_built_in_one(tmp_path):
     for figure in ("pr_curves.png", "correct_matches.png"):
         legend = Image.open(logdir / "figures" / figure).text["Description"]
         assert "centred_pixels" in legend and "raw" in legend, (figure, legend)
-    # Its fitted state is saved: a fresh process loads it (patch normalisation included) and
-    # scores the test places as the sweep did.
+
+
+def test_a_method_of_your_own_is_saved_and_a_fresh_process_loads_it(own):
+    """Patch normalisation included, it scores the test places as the sweep did."""
+    logdir, args, env, _, _ = own
     checks = run_process(
-        [
-            sys.executable,
-            "tests/saved_encoder_checks.py",
-            str(logdir),
-            "summer-fall",
-            *proc.args[3:],
-        ],
+        [sys.executable, "tests/saved_encoder_checks.py", str(logdir), "summer-fall", *args],
         env=env_with_repo(**env),
     )
     assert checks.returncode == 0, checks.stderr[-3000:]
@@ -134,11 +145,19 @@ def test_a_method_of_your_own_runs_like_a_built_in_one(tmp_path):
     assert sorted(Path(f).name for f in by_folder) == ["centred_pixels", "raw"]
     for check in by_folder.values():
         assert check["score_gap"] < 1e-5 and check["recall_at_1"] == check["sweep_recall_at_1"]
-    # A rerun finds every cell done; other settings of the method are another configuration.
-    again = run_cli(*proc.args[3:], env=env)
+
+
+def test_a_rerun_resumes_and_other_settings_are_another_configuration(own, monkeypatch, tmp_path):
+    logdir, args, _, _, mine = own
+    monkeypatch.syspath_prepend(str(mine))
+    shutil.copytree(logdir, tmp_path / "runs")  # the shared sweep stays as it is
+    shutil.copytree(logdir.parent.parent / "own_method" / "checkpoints", tmp_path / "checkpoints")
+    moved = {"logdir": tmp_path / "runs", "train.checkpoint_dir": tmp_path / "checkpoints"}
+    args = [f"{k}={moved[k]}" if k in moved else a for a in args for k in [a.split("=")[0]]]
+    again = run_here(*args)
     assert "resuming: 2 of 2 cells" in again.stdout and again.returncode == 0
-    other = [a if "scale=" not in a else "plugin.centred_pixels.scale=2" for a in proc.args[3:]]
-    assert_one_line_error(run_cli(*other, env=env), "plugin.centred_pixels", "new logdir")
+    other = [a if "scale=" not in a else "plugin.centred_pixels.scale=2" for a in args]
+    assert_one_line_error(run_here(*other), "plugin.centred_pixels", "new logdir")
 
 
 def test_a_method_that_fails_is_one_line_and_the_fixed_method_resumes(tmp_path):

@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 from sklearn.decomposition import PCA
 
-from tests.conftest import numpy_cosine
+from tests.conftest import numpy_cosine, suffix_cosine
 from vpr_jax.encoders import diff_pca, lda, pca
-from vpr_jax.evaluation.matching import suffix_cosine
 
 CHANGE_SCALES = np.array([8.0, 6.0, 4.5, 3.5, 2.5, 2.0])  # distinct: directions well defined
 

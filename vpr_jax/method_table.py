@@ -144,11 +144,6 @@ def info_of(entry: str) -> MethodInfo:
     return METHODS[entry]
 
 
-def precomputed_info(name: str) -> MethodInfo:
-    """A set of outside descriptors as a row of the table."""
-    return MethodInfo(name=name, method="", precomputed=True)
-
-
 def load_object(info: MethodInfo) -> Any:
     """The object a row names, imported now; a user's that cannot be: UserError (one line)."""
     module_name, name = info.method.rsplit(":", 1)

@@ -106,21 +106,6 @@ def _suffix_dots(query_desc, db_desc, starts):
         yield i, dot, inv_q, inv_db
 
 
-def suffix_cosine(
-    query_desc: Float[Array, "nq d"], db_desc: Float[Array, "ndb d"], starts: tuple[int, ...]
-) -> Float[Array, "s nq ndb"]:
-    """Cosine similarity on descriptor suffixes ``[start:]`` for every start, in one pass.
-
-    ``starts`` must be strictly increasing and each < d. Equivalent to
-    ``stack([cosine_similarity(q[:, s:], db[:, s:]) for s in starts])``.
-    """
-    scores = {
-        i: dot * inv_q[:, None] * inv_db[None, :]
-        for i, dot, inv_q, inv_db in _suffix_dots(query_desc, db_desc, starts)
-    }
-    return jnp.stack([scores[i] for i in range(len(starts))])
-
-
 def block_top_k(
     dot: Float[Array, "nq blk"],
     inv_q: Float[Array, " nq"],

@@ -95,12 +95,6 @@ def outside_settings(cfg: SweepConfig | dict) -> dict[str, dict]:
     return {f"precomputed.{n}": v for n, v in out.get("precomputed", {}).items()}
 
 
-def saved_identity(path: Path) -> dict:
-    """The identity of a logdir's config.yaml; one of another format (or not a sweep config
-    at all) is refused."""
-    return identity(saved_config(path))
-
-
 def saved_config(path: Path) -> dict:
     """A logdir's config.yaml as plain data, without its format; one of another format (or
     not a sweep config at all) is refused."""

@@ -1,8 +1,10 @@
 """TensorBoard output: one run per sweep cell, plus the HParams experiment at the sweep root.
 
-HParams follow the route that keeps scalars safe (see shared NOTES): the experiment config is
-written once at the root, and each run's hparams go into that run's own writer, instead of
-``add_hparams``, which opens extra writers and can truncate the run's event file.
+HParams follow the route that keeps scalars safe: the experiment config is written once at
+the root, and each run's hparams go into that run's own writer, instead of tensorboardX's
+``add_hparams``, which opens a writer of its own in a subfolder and, pointed at the run
+itself (``name="."``), can truncate the run's event file (file names carry whole seconds)
+and lose every scalar.
 """
 
 from __future__ import annotations
