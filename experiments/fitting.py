@@ -202,8 +202,7 @@ def save_state(fit: Fit, state: Any, run: PairRun) -> None:
         "name": info.name,
         "objective": fit.objective,
         "pair": run.data.name,
-        "setting": fit.served[0].setting if len(fit.served) == 1 else "",
-        "settings": {k: v for k, v in fit.values.items()},
+        "settings": dict(fit.values),
         "serves": serves,
         "cells": [
             {"run": p.run, "setting": p.setting, "removed_pcs": p.removed_pcs, "served": p.values}
@@ -226,7 +225,7 @@ def describe_fit(fit: Fit, parts: tuple[Served, ...], run: PairRun) -> Iterator[
     suffix = suffix_of(fit.method.method, fit.settings)
     if suffix:
         starts = tuple(int(p.values[suffix]) for p in parts)
-        base = {k: v for k, v in parts[0].values.items() if k != suffix}
+        base = {**parts[0].values, suffix: 0}  # the whole descriptors: every suffix of them
         yield _describe(fit, parts, starts, _encoder(fit, state, base), state, seconds, run)
         return
     for part in parts:

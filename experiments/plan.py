@@ -157,8 +157,8 @@ def make_plan(
         for r in methods
     }
     cfg = resolve.trim_removed(cfg, methods, sets, given, log)
-    methods = resolve.check_training_set(cfg, methods, sets, log)
     sets = {name: ts._replace(removed_pcs=cfg.removed_pcs) for name, ts in sets.items()}
+    methods = resolve.check_training_set(methods, sets, log)
     cfg = _with_effective_settings(cfg, methods)
     check_same_config(logdir, cfg, lambda saved: resolve.settings_identities(saved))
     return Plan(

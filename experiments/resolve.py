@@ -102,7 +102,12 @@ def shared_fit_settings(cfg: SweepConfig) -> tuple[Callable, Any]:
     info = METHODS[SHARED_FIT]
     provider = resolve(info, given_settings(cfg, info))
     if len(provider.combinations) != 1:
-        raise UserError(f"{provider.group}.* settings of the shared PCA fit cannot be swept")
+        swept = ", ".join(f"{provider.group}.{n}" for n, _ in provider.combinations[0].swept)
+        raise UserError(
+            f"{swept} is a list, but {provider.group}'s settings also shape the pair's shared "
+            "PCA fit, which every method that uses it shares: give one value, and sweep it "
+            "in logdirs of their own"
+        )
     return provider.method.shared_fit, provider.combinations[0].settings
 
 
@@ -186,14 +191,10 @@ def trim_removed(
         some.pca_limit - 1,
         f"PCA of {some.n_images} training images has {some.pca_limit} components",
     )
-    for r in sweeping:
-        if r.method.most_removed is None:
-            continue
+    for r in (r for r in sweeping if r.method.most_removed is not None):
         for c in r.combinations:
             limit, reason = r.method.most_removed(c.settings, sets[r.name])
-            if limit < most or (limit == most and reason and reason not in why):
-                why += reason
-            most = min(most, limit)
+            most, why = min(most, limit), why if reason in why else why + reason
     kept = tuple(k for k in cfg.removed_pcs if k <= most)
     dropped = [k for k in cfg.removed_pcs if k > most]
     if dropped and kept:
@@ -203,17 +204,17 @@ def trim_removed(
 
 
 def check_training_set(
-    cfg: SweepConfig, resolved: tuple[Resolved, ...], sets: dict[str, TrainingSet], log: Log
+    resolved: tuple[Resolved, ...], sets: dict[str, TrainingSet], log: Log
 ) -> tuple[Resolved, ...]:
     """Each method's settings fitted to the training set by its own ``check`` (notes for
     what it changes, UserError for what it cannot serve); removed counts beyond the PCA of
     the training set are refused for every method that takes them."""
     out = []
     for r in resolved:
-        ts = sets[r.name]._replace(removed_pcs=cfg.removed_pcs)
-        if "removed_pcs" in r.method.sweeps and max(cfg.removed_pcs) >= ts.pca_limit:
+        ts = sets[r.name]
+        if "removed_pcs" in r.method.sweeps and max(ts.removed_pcs) >= ts.pca_limit:
             raise UserError(
-                f"removed_pcs={list(cfg.removed_pcs)} leaves no component: PCA of "
+                f"removed_pcs={list(ts.removed_pcs)} leaves no component: PCA of "
                 f"{ts.n_images} training images has {ts.pca_limit} components, so use "
                 f"counts below {ts.pca_limit}"
             )

@@ -235,7 +235,7 @@ def _run_pair(
             for desc in describe_fit(fit, parts, pair_run()):
                 yield from _save_descriptors(out, cfg, pair_run().data, desc, todo, mesh)
                 # The cells are saved: drop the descriptors before the next fit and
-                # encoding (a 35,768-frame database's are 0.3 GiB).
+                # encoding, so two methods' descriptors are never held at once.
                 del desc
                 release_free_memory()
     for name, sides in plan.outside.items():

@@ -173,6 +173,16 @@ CONFIG_CASES = {
         ["diff_pca", "250 aligned training places", "up to 250"],
     ),
     "LDA shrinkage outside [0, 1]": (["lda.shrinkage=1.5"], ["lda.shrinkage=1.5", "[0, 1]"]),
+    "an unknown setting of a method": (["ica.foo=1"], ["ica.foo is unknown", "n_components"]),
+    "a bad value among a swept setting's": (
+        ["lda.shrinkage=[0.1,2]"],
+        ["lda.shrinkage=2", "[0, 1]"],
+    ),
+    "a swept setting of the shared PCA fit": (
+        ["pca.solver=[auto,gram]"],
+        ["pca.solver is a list", "shared PCA fit"],
+    ),
+    "seeds that repeat": (["seeds=[0,0]"], ["seeds=[0, 0]", "name each once"]),
     "unknown ICA contrast": (["ica.fun=tanh"], ["ica.fun=tanh", "logcosh"]),
     "sequence of no image": (["sequence.ds=[0,10]"], ["sequence.ds=[0, 10]", "ds=1"]),
     "velocities backwards": (

@@ -2,10 +2,10 @@
 
 A numpy array whose data starts on a 64-byte boundary goes into a jitted function, or
 through ``jax.device_put``, without a copy on a CPU backend; any other array is copied
-first (numpy's own allocations are 16-byte aligned). Measured with jax 0.10.2: a 35,768 x
-2,048 float32 season (0.27 GiB) costs 0.27 GiB more resident memory each time it enters a
-jitted function unaligned, and nothing aligned; ``jnp.asarray`` without a dtype copies
-even an aligned array, ``jax.device_put`` does not.
+first (numpy's own allocations are 16-byte aligned), so an unaligned array costs its own
+size again in resident memory each time it enters a jitted function, and an aligned one
+nothing. ``jnp.asarray`` without a dtype copies even an aligned array; ``jax.device_put``
+does not.
 
 The route's seasons, the pair's image arrays and blocked descriptors are allocated here, so
 the whole route (``preset=full``) fits in what its arrays need. Pure numpy: loading data
@@ -91,8 +91,8 @@ def _libc():
 
 def release_free_memory() -> bool:
     """Hand the heap's free pages back to the OS (glibc's ``malloc_trim``; False where there
-    is none). XLA's temporaries of 1-32 MB come from malloc's per-thread heaps, which keep
-    freed pages: over the whole route's three pairs they added 0.1-0.2 GiB to the peak.
-    Cheap (milliseconds): the runner calls it after each method."""
+    is none). XLA's temporaries come from malloc's per-thread heaps, which keep freed
+    pages, so without a trim they pile up over a sweep's pairs and raise its peak memory.
+    Cheap enough that the runner calls it after each method."""
     libc = _libc()
     return bool(libc and libc.malloc_trim(0))

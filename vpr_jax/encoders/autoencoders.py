@@ -19,8 +19,8 @@ inside its own functions.
 
 Training speed on CPU: the CAE's wide convolutions take their kernel gradient from
 ``encoders/conv.py`` (per-tap matrix products instead of XLA's slow gradient convolution)
-and pooling is a reshape and a max (``max_pool_2x2``); together about 2x faster per epoch
-(84 s against 167-177 s at the seed's size).
+and pooling is a reshape and a max (``max_pool_2x2``), whose gradient is cheaper than
+``reduce_window``'s (docs/speed.md, "Auto-encoders").
 """
 
 from __future__ import annotations
@@ -153,8 +153,8 @@ class FAE(nnx.Module, _Residual):
 
 def max_pool_2x2(x: Float[Array, "n h w c"]) -> Float[Array, "n h2 w2 c"]:
     """2x2 max-pooling, stride 2, as a reshape and a max: the same values as
-    ``nnx.max_pool(x, (2, 2), strides=(2, 2))`` on even sizes, and on CPU a gradient 2.3x
-    faster than reduce_window's select-and-scatter (measured at 32x64x64, batch 64)."""
+    ``nnx.max_pool(x, (2, 2), strides=(2, 2))`` on even sizes, with a gradient that is
+    cheaper on CPU than reduce_window's select-and-scatter."""
     n, h, w, c = x.shape
     return x.reshape(n, h // 2, 2, w // 2, 2, c).max(axis=(2, 4))
 
@@ -256,8 +256,8 @@ def _module(spec: Spec, key: jax.Array, image_shape: tuple[int, int]) -> FAE | C
 @functools.partial(jax.jit, static_argnums=(0, 2))
 def _init_params(spec: Spec, key: jax.Array, image_shape: tuple[int, int]) -> dict:
     # One compiled program draws every initial weight, from an RBG key made of the given
-    # key's bits: XLA's CPU compiler takes about 10 s over threefry's unrolled rounds for the
-    # CAE's twelve weight arrays (jax 0.10.2, 2 cores) and about 1.5 s over RngBitGenerator.
+    # key's bits: XLA's CPU compiler is slow over threefry's unrolled rounds for the CAE's
+    # twelve weight arrays, and much quicker over RngBitGenerator.
     # Same key, same weights on one backend; other backends may draw other weights.
     bits = jax.random.key_data(key).reshape(-1)
     rbg = jax.random.wrap_key_data(jnp.concatenate([bits, bits]), impl="rbg")

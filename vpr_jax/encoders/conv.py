@@ -1,17 +1,16 @@
 """A stride-1 NHWC convolution whose kernel gradient is k*k matrix products, for CPU training.
 
 XLA's CPU backend computes a convolution's kernel gradient as one more convolution, and
-that one runs at about a tenth of the machine's matrix-product speed (measured on a 2-core
-EPYC: for the CAE's 4x4, 64 -> 128 layer on a batch of 64 at 16x32 the kernel gradient
-takes 0.93 s, the forward pass 0.08 s). The kernel gradient of a stride-1 convolution is a
-sum over the k*k kernel taps of one product each,
+that one runs far below the machine's matrix-product speed (docs/speed.md,
+"Auto-encoders"). The kernel gradient of a stride-1 convolution is a sum over the k*k
+kernel taps of one product each,
 
     dW[i, j] = x_padded[:, i : i + H, j : j + W, :]^T  @  dY        ((C, N H W) @ (N H W, O)),
 
 which runs near the product speed when both channel counts are large. The input gradient is
 XLA's forward convolution of dY with the flipped kernel, as fast here as XLA's own
 transposed convolution, which returns garbage on this backend when a side's padding exceeds
-k - 1 (jax 0.10.2; the tests check the odd paddings against numpy).
+k - 1 (the tests check the odd paddings against numpy).
 
 ``conv_general_dilated`` has ``jax.lax.conv_general_dilated``'s signature so that
 ``flax.nnx.Conv(..., conv_general_dilated=conv_general_dilated)`` uses it. Anything other
@@ -35,9 +34,7 @@ _NHWC = ("NHWC", "HWIO", "NHWC")
 Pads = tuple[tuple[int, int], tuple[int, int]]
 # The per-tap products pay only when both channel counts are this large: with few input or
 # output channels each product is a thin matrix-vector pass over a copied window, and XLA's
-# own kernel gradient wins (measured on the CAE's layers: 1 -> 64 and 64 -> 1 at 32x64 run
-# 1.6x and 6x slower the product way; 64 -> 128 and 128 -> 64 at 16x32 run 3.3x and 1.6x
-# faster).
+# own kernel gradient wins (docs/speed.md, "Auto-encoders").
 MIN_CHANNELS = 32
 
 

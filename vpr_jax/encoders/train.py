@@ -311,8 +311,8 @@ def checkpoint_meta(
     selected_by: str = SELECT_LOSS,
 ) -> dict:
     """What a checkpoint must hold to be reused: the same model, image shape, objective,
-    selection and identity (a checkpoint of an older suite that selected otherwise is
-    refused, not resumed)."""
+    selection and identity (a checkpoint whose best parameters were chosen by another rule
+    is refused, not resumed)."""
     return {
         "spec": ae.spec_to_json(spec),
         "image_shape": list(image_shape),

@@ -14,7 +14,8 @@ fraction of correct best matches, AUC-PR the trapezoidal area under the weighted
 single-best-match PR curve (the exact curve of the resampled queries: a query drawn twice is
 accepted twice at its threshold). Intervals are the 2.5th and 97.5th percentiles of 1,000
 resamples; a paired difference draws the same resamples for two methods on the same queries,
-so what the two have in common cancels. Vectorised numpy: milliseconds per cell.
+so what the two have in common cancels. Vectorised numpy, so the intervals add little to a
+cell's time.
 """
 
 from __future__ import annotations
@@ -80,8 +81,8 @@ def weighted_auc_pr(
 
     Thresholds are every distinct score; a query of count 0 adds a point equal to the one
     before it, which adds no area, so the curve of a resample needs no compaction. Resamples
-    are scored ``RESAMPLE_CHUNK`` at a time: each is its own row, and all at once took a
-    dozen (resamples, queries) float64 arrays (0.15 GiB at 3,450 queries).
+    are scored ``RESAMPLE_CHUNK`` at a time: each is its own row, and all at once would hold
+    a dozen (resamples, queries) float64 arrays in memory together.
     """
     order = np.argsort(-np.asarray(scores), kind="stable")
     s = np.asarray(scores)[order]

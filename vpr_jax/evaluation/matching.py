@@ -58,9 +58,8 @@ def last_level_cache_bytes() -> int:
 def score_budget() -> int:
     """Floats of one matching step's scores when blocks are automatic: a quarter of the
     last-level cache, so a block's scores stay there between the product that writes them
-    and the ranking passes that read them (3,569 x 3,569 top-10 on a 2-core EPYC, 32 MiB L3:
-    query blocks of 256-512 rows ran 15-25% faster than one block of every query, whose
-    51 MB of scores are written to fresh memory on each call)."""
+    and the ranking passes that read them; one block of every query would instead write its
+    scores to fresh memory on each call (docs/speed.md, "Matching")."""
     return last_level_cache_bytes() // 4 // 4
 
 
@@ -159,8 +158,8 @@ def _top_k_blocks(
 ):
     """Running top-K over the database's rows a block at a time; ``first_index`` is the
     global index of its first row (a device's part of a sharded database starts past 0).
-    Whole blocks are read from ``db_desc`` in place; only a last partial block is padded
-    (padding the whole database copied it: 0.3 GiB at 35,768 frames)."""
+    Whole blocks are read from ``db_desc`` in place; only a last partial block is padded,
+    because padding the whole database would copy it."""
     n_starts, nq = len(starts), query_desc.shape[0]
     init = (
         jnp.full((n_starts, nq, k), -jnp.inf, query_desc.dtype),
@@ -212,9 +211,8 @@ def _top_k_query_blocks(query_blocks, db_desc, n_db, k, block_size, starts, firs
 @functools.partial(jax.jit, static_argnames=("k", "block_size", "query_block_size", "starts"))
 def _top_k_unpadded(query_desc, db_desc, k, block_size, query_block_size, starts):
     """``_top_k_query_blocks`` on the descriptors as they are: the queries padded to whole
-    blocks inside the compiled program, the database read in place. Padding outside took
-    three copies of the database (the padded array, its reshape, and jnp.asarray's own):
-    0.95 GiB of working memory for the 35,768-frame route's 0.29 GiB of pixels."""
+    blocks inside the compiled program, the database read in place. Padding outside would
+    take three copies of the database: the padded array, its reshape, and jnp.asarray's own."""
     return _top_k_query_blocks(
         _blocks(query_desc, query_block_size),
         db_desc,

@@ -1,79 +1,10 @@
 """Place-recognition metrics: PR curve, AUC-PR, precision at 100% recall, R@100P, recall@K.
 
 Pure numpy on results already fetched from devices; no file IO. Everything works from each
-query's top-K database matches, so a caller matching a 35,768-frame route never needs the full
-(n_queries, n_db) similarity matrix (:func:`evaluate_top_k`); :func:`evaluate_similarity` is the
-convenience wrapper for a matrix that fits in memory.
-
-Ground truth
-    ``vpr_jax.data.ground_truth``: a tolerance on frame ids (aligned routes, below) or explicit
-    sets per query (any benchmark); :func:`evaluate_matches` takes either.
-    Query with original frame id ``q`` matches database frame ``d`` when ``|q - d| <= tolerance``.
-    ``has_match[i]`` says whether the database holds any true match for query ``i`` (found with
-    ``searchsorted`` on a sorted copy of ``db_ids``: O((Nq + Ndb) log Ndb), never an
-    (Nq, Ndb) boolean matrix); a retrieved index is correct when its frame id is within
-    ``tolerance`` of the query's.
-
-Single-best-match PR curve (VPR-Bench, CALC, VPR_Tutorial ``matching='single'``)
-    Each query keeps its single best match and that match's score. Every distinct best score is
-    a threshold, highest first; a query is *accepted* at threshold ``t`` iff ``score >= t``.
-    ``TP = accepted & correct`` and ``FP = accepted & ~correct``, so precision
-    ``TP / (TP + FP)`` is the same in every convention. Conventions differ in recall only:
-
-    ``"vpr_bench"`` (default)
-        ``recall = TP / n_correct``, with ``n_correct`` the number of queries whose best match is
-        correct, i.e. ``FN = rejected & correct``. This is scikit-learn's
-        ``precision_recall_curve(best_correct, best_scores)``, which is exactly what VPR-Bench
-        (``performance_comparison.py``: ``compute_precision_recall``/``compute_auc_PR``) and
-        CALC (``TrainAndTest/testNet.py``) run on the best match per query. At the loosest
-        threshold every query is accepted, recall is 1 and precision is the fraction of correct
-        matches (= recall@1), which is "precision at 100% recall" in those papers.
-    ``"has_match"``
-        ``FN = rejected & has_match`` (a rejected query that has a true match in the database,
-        whether its best match was right or wrong); ``recall = TP / (TP + FN)``. A wrong
-        accepted match counts as FP only. At the loosest threshold FN = 0 so recall is 1 (when
-        any match is correct) and precision is again recall@1. Recall is never above the
-        ``"vpr_bench"`` recall at the same threshold (its denominator is at least
-        ``n_correct``), so AUC-PR comes out lower.
-    ``"vpr_tutorial"``
-        VPR_Tutorial ``createPR(matching='single')``: ``recall = TP / n_has_match`` (queries
-        with at least one true match). Its maximum recall is ``n_correct / n_has_match``, the
-        fraction of correct matches among queries that can be matched; it reaches 1 only when
-        every such query is matched correctly.
-
-    Zero denominators give 0 (e.g. recall when no query has a correct match); scikit-learn
-    instead sets recall to 1 there, with a warning.
-
-    The curve starts at ``(recall 0, precision 1)`` before any query is accepted (its threshold is
-    stored as ``+inf``), as VPR_Tutorial's ``createPR`` (``R = [0]; P = [1]``) and scikit-learn
-    (last point ``precision 1, recall 0``) both do. Unlike VPR_Tutorial, which samples 100
-    thresholds evenly between the largest and smallest score, every distinct score is used, so
-    the curve is exact (evaluate the tutorial's sampling with :func:`pr_counts`).
-
-Scalar metrics (the seven in :meth:`Evaluation.scalars`)
-    ``recall_at_1``: fraction of ALL queries whose best match is correct ("fraction of correct
-    matches"; VPR-Bench's ``compute_accuracy``).
-    ``precision_at_full_recall``: precision at the loosest threshold (every query accepted),
-    i.e. ``n_correct / n_queries`` — identical to ``recall_at_1`` by construction, whatever the
-    convention. In ``"vpr_bench"`` and ``"has_match"`` recall is 1 there (it may reach 1 at a
-    stricter threshold already, with higher precision; the literature's "precision at 100%
-    recall" is this loosest point); in ``"vpr_tutorial"`` it is the point of maximum recall.
-    ``auc_pr``: trapezoidal area under the curve above, integrated over recall, start point
-    included: scikit-learn ``auc(recall, precision)`` (VPR-Bench ``compute_auc_PR``, CALC) and
-    ``np.trapz(P, R)`` in VPR_Tutorial's ``demo.py``. Not average precision (a step sum).
-    ``recall_at_100_precision``: the largest recall on the curve where precision is exactly 1
-    (no false positive accepted); the start point makes it 0 when the best-scored match is
-    wrong (VPR_Tutorial ``recallAt100precision``: ``R[P == 1].max()``).
-    ``recall_at_5``, ``recall_at_10`` (and any K in ``ks``): VPR_Tutorial ``recallAtK``: among
-    queries with at least one true match (the others are dropped), the fraction with a true
-    match among their top K. Unlike ``recall_at_1`` above it ignores queries without a match;
-    the two agree for K = 1 when every query has a match. With fewer than K database frames
-    K is clipped to the database size (as VPR_Tutorial's ``demo.py`` does).
-    ``extended_precision``: VPR-Bench's EP (:func:`extended_precision`).
-
-Degenerate inputs (no query with a true match, all scores equal, a single query) return
-well-defined numbers without division warnings; NaN or infinite best scores, bad shapes, and
-out-of-range indices raise ``ValueError`` with a one-line message.
+query's top-K database matches (:func:`evaluate_top_k`), so matching a long route never needs
+the full similarity matrix; :func:`evaluate_similarity` is the convenience wrapper for a matrix
+that fits in memory. docs/metrics.md defines each metric and PR convention with the
+references it follows.
 """
 
 from __future__ import annotations
@@ -114,7 +45,7 @@ SCALAR_NAMES: tuple[str, ...] = (
 
 
 class Evaluation(NamedTuple):
-    """Metrics of one database/query pair; see the module docstring for every definition.
+    """Metrics of one database/query pair; docs/metrics.md defines each of them.
 
     ``pr_precision``, ``pr_recall``, ``pr_thresholds`` (length n_distinct_scores + 1): the PR
     curve from the strictest threshold to the loosest; index 0 is the start point (recall 0,
@@ -428,7 +359,7 @@ def evaluate_matches(
     pr_convention: PRConvention = "vpr_bench",
     ks: tuple[int, ...] = DEFAULT_KS,
 ) -> Evaluation:
-    """All metrics from each query's top-K matches (see the module docstring) against any
+    """All metrics from each query's top-K matches (docs/metrics.md) against any
     ground truth (``vpr_jax.data.ground_truth``: a tolerance on frame ids or explicit sets).
 
     ``top_scores[i]`` must be sorted best first and ``top_indices[i]`` hold database

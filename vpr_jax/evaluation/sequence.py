@@ -99,7 +99,7 @@ def _enhance(diff: Float[Array, "r n"], window: int) -> Float[Array, "r n"]:
         )
 
     # Frames in each window (fewer at the ends), elementwise: a windowed sum of a constant
-    # would be constant-folded at compile time, seconds on the full route.
+    # would be constant-folded at compile time, which grows slow with the route's length.
     n, at = diff.shape[1], jnp.arange(diff.shape[1])
     count = (jnp.minimum(at + half, n - 1) - jnp.maximum(at - half, 0) + 1).astype(diff.dtype)
     mean = window_sum(diff) / count
@@ -150,7 +150,7 @@ def _search_block(sim_rows, row_stretch, db_stretch, *, ds, offsets, window, uni
 def _smallest_k(cost: Float[Array, "b n"], k: int) -> tuple[Array, Array]:
     """The k smallest entries of every row, ascending, ties to the lower index (like a
     stable sort). k passes of argmin: ``lax.top_k`` here compiles, on the CPU, to a full
-    sort of every row (30x slower), because the costs have a second consumer."""
+    sort of every row, because the costs have a second consumer."""
     rows = jnp.arange(cost.shape[0])
     values, indices = [], []
     for _ in range(k):

@@ -1,6 +1,6 @@
-"""What a method hands the runner: ``Descriptors`` of a pair's database, queries and
-validation places, and the ``MethodContext`` it may draw on; the shared steps of making
-them (timed fits, warm encoding, the degenerate-descriptor check)."""
+"""What the runner makes of one fit of a method: ``Descriptors`` of a pair's database,
+queries and validation places, with a ``Part`` per cell; and the shared steps of making
+them (timed fits, blocked warm encoding, the degenerate-descriptor check)."""
 
 from __future__ import annotations
 
@@ -63,9 +63,9 @@ ENCODE_BLOCK_ROWS = 4096
 def encode_rows(encode: Callable, images, block_rows: int = ENCODE_BLOCK_ROWS):
     """``encode(images)``, for more than ``block_rows`` images a block at a time into one
     aligned host array (``vpr_jax.host_arrays``: the matcher reads it in place). An encoder's
-    intermediates are the size of its input: PCA's for the whole 35,768-frame route were
-    0.6 GiB beside its 0.3 GiB of descriptors. Fewer images (the paper protocol's 3,569)
-    are encoded in one call, as before."""
+    intermediates are the size of its input, so encoding a long route in one call would hold
+    them beside its descriptors. Fewer images (the paper protocol's 3,569) are encoded in
+    one call."""
     n = len(images)
     if n <= block_rows:
         return encode(images)
@@ -144,7 +144,7 @@ def degenerate_rows(desc: Float[Array, "n d"]) -> tuple[int, bool]:
     rows that all point one way (pairwise cosine above 1 - 5e-7) score the same against
     every query. Two passes over blocks of ``ENCODE_BLOCK_ROWS`` rows (norms, then each
     row's distance from the first nonzero one), so nothing the size of the descriptors is
-    allocated: one program over a 35,768-frame database took 0.26 GiB on its first run.
+    allocated, as one program over the whole database would on its first run.
     """
     rows = [slice(s, s + ENCODE_BLOCK_ROWS) for s in range(0, len(desc), ENCODE_BLOCK_ROWS)]
     norms = np.concatenate([np.asarray(_row_norms(desc[r])) for r in rows] or [np.zeros(0)])
