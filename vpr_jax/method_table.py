@@ -84,8 +84,10 @@ def model_label(
 
 def run_suffix(setting: str) -> str:
     """A setting's label as part of a run or folder name: ``n_components=64``,
-    ``hidden=256_init=pca``; characters a file name should not hold become ``-``."""
-    return re.sub(r"[^A-Za-z0-9._=+-]", "-", setting.replace(" ", "_").replace(",", "-"))
+    ``hidden=256_init=pca``, ``channels=16-32`` for ``channels=[16,32]``; other characters a
+    file name should not hold become ``-``."""
+    plain = setting.replace(" ", "_").replace(",", "-").replace("[", "").replace("]", "")
+    return re.sub(r"[^A-Za-z0-9._=+-]", "-", plain)
 
 
 def check_methods(methods: tuple[str, ...]) -> str | None:

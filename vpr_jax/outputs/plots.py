@@ -90,35 +90,38 @@ def pr_curves_figure(
     _save(fig, path)
 
 
+def _range(rows: list[ResultRow], mean: float) -> list[float]:
+    """(below, above) the mean of a method's seeds' recall@1: the bar's whisker."""
+    if len(rows) < 2:
+        return [0.0, 0.0]
+    recalls = [r.recall_at_1 for r in rows]
+    return [mean - min(recalls), max(recalls) - mean]
+
+
 def correct_matches_figure(rows: list[ResultRow], path: Path):
     """Grouped bars: fraction of correct matches (recall@1) per pair and method (and
-    objective)."""
+    objective; a swept setting at its validation-selected value), in each method's colour
+    of the compare runs."""
     best = by_label(selected_rows(_shortest_sequences(rows)))
     pairs = list(dict.fromkeys(r.season_pair for r in rows))  # sweep order
-    style = styles(rows)
+    style = {
+        label: line for label, line in styles(rows).items() if any(k[1] == label for k in best)
+    }
     width = 0.8 / len(style)
     fig, ax = plt.subplots(figsize=(3.0 + 0.25 * len(style) * len(pairs), 3.8))
     for m, (method, line) in enumerate(style.items()):
         mine = [best.get((p, method), []) for p in pairs]
         x = np.arange(len(pairs)) + (m - (len(style) - 1) / 2) * width
         heights = [_mean(r, "recall_at_1") if r else np.nan for r in mine]
-        spread = np.array(
-            [
-                [h - min(x.recall_at_1 for x in r), max(x.recall_at_1 for x in r) - h]
-                if len(r) > 1
-                else [0.0, 0.0]
-                for h, r in zip(heights, mine, strict=True)
-            ]
-        ).T
-        hatch = "//" if line["linestyle"] == "--" else None
+        whiskers = np.array([_range(r, h) for r, h in zip(mine, heights, strict=True)]).T
         bars = ax.bar(
             x,
             heights,
             width,
             label=method,
             color=line["color"],
-            hatch=hatch,
-            yerr=spread if spread.any() else None,
+            hatch="//" if line["linestyle"] == "--" else None,
+            yerr=whiskers if whiskers.any() else None,
         )
         ax.bar_label(bars, fmt="%.2f", fontsize=7)
     ax.set_xticks(np.arange(len(pairs)), pairs)
