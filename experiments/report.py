@@ -134,10 +134,7 @@ def pooled_curve(rows: list[ResultRow], curve: "Curves", pr_convention: str) -> 
     curve of all their queries pooled."""
     if len(rows) == 1:
         return curve(rows[0].run)["precision"], curve(rows[0].run)["recall"]
-    arrays = {
-        name: np.concatenate([curve(r.run)[name] for r in rows])
-        for name in ("best_scores", "best_correct", "has_match")
-    }
+    arrays = pooled_arrays(rows, curve)
     precision, recall, _ = pr_curve(
         arrays["best_scores"],
         arrays["best_correct"].astype(bool),
@@ -340,15 +337,14 @@ def markdown_table(rows: list[ResultRow], differences: dict[str, Difference] | N
     shown = _shown(rows)
     preferred = best_objectives(rows)  # runs marked "best"
     first = rows[0] if rows else None
+    seeds = ", ".join(str(s) for s in sorted({r.seed for r in rows}))
     intro = (
         f"{first.n_test} queries per pair, a match is correct within {first.ground_truth}, "
-        f"data seed {first.seed}. recall_at_1 is the fraction of correct matches (= precision "
-        "at 100% recall)."
+        f"{'seeds' if 'seed' in shown else 'seed'} {seeds}. recall_at_1 is the fraction of "
+        "correct matches (= precision at 100% recall)."
         if first
         else "No cells yet."
     )
-    if first is not None and "seed" not in shown:
-        intro = intro.replace("data seed", "seed")
     lines = [
         "# Results",
         "",

@@ -22,7 +22,7 @@ class Settings:
     """``fae.*``."""
 
     hidden: int = 256  # code length: the place descriptor
-    epochs: int | None = None  # overrides train.epochs for the FAE (it trains ~100x faster)
+    epochs: int | None = None  # overrides train.epochs for the FAE (its epochs are short)
     # One cell per objective: reconstruct (the seed's), cross_season and/or contrastive
     # (see vpr_jax.encoders.objectives); one value or a list.
     objective: tuple[str, ...] = ("reconstruct", "cross_season")
