@@ -21,6 +21,7 @@ from experiments.cells import INCOMPLETE, log_cell, match, save_cell, validation
 from experiments.fitting import PairRun, describe_fit
 from experiments.plan import Plan
 from experiments.report import COMPARE, SUMMARY, write_report
+from experiments.resolve import Fit, Served
 from vpr_jax.config import MeshConfig
 from vpr_jax.data.pair import PairData, benchmark_pair, pair_data
 from vpr_jax.errors import UserError, first_line
@@ -105,15 +106,7 @@ def all_cells(plan: Plan) -> list[CellKey]:
     for a, b in plan.pairs:
         for fit in plan.fits:
             out += [
-                CellKey(
-                    season_pair=f"{a}-{b}",
-                    method=fit.method.name,
-                    objective=fit.objective,
-                    setting=part.setting,
-                    removed_pcs=part.removed_pcs,
-                    ds=ds,
-                    seed=fit.seed,
-                )
+                cell_of(f"{a}-{b}", fit, part, ds)
                 for part in fit.served
                 for ds in cfg.sequence_lengths
             ]
@@ -123,6 +116,19 @@ def all_cells(plan: Plan) -> list[CellKey]:
             for ds in cfg.sequence_lengths
         ]
     return out
+
+
+def cell_of(pair: str, fit: Fit, part: Served, ds: int) -> CellKey:
+    """The cell of one served part of a fit at one sequence length."""
+    return CellKey(
+        season_pair=pair,
+        method=fit.method.name,
+        objective=fit.objective,
+        setting=part.setting,
+        removed_pcs=part.removed_pcs,
+        ds=ds,
+        seed=fit.seed,
+    )
 
 
 def outside_cell(pair: str, name: str, ds: int, seed: int) -> CellKey:
@@ -199,19 +205,7 @@ def _run_pair(
     run = None
 
     def left(fit, part) -> bool:
-        return any(
-            CellKey(
-                season_pair=pair,
-                method=fit.method.name,
-                objective=fit.objective,
-                setting=part.setting,
-                removed_pcs=part.removed_pcs,
-                ds=ds,
-                seed=fit.seed,
-            )
-            in todo
-            for ds in cfg.sequence_lengths
-        )
+        return any(cell_of(pair, fit, part, ds) in todo for ds in cfg.sequence_lengths)
 
     def pair_run() -> PairRun:  # built on first use
         nonlocal run

@@ -35,7 +35,7 @@ from vpr_jax.encoders.train import (
 )
 from vpr_jax.errors import UserError
 from vpr_jax.files import lock_folder
-from vpr_jax.methods.contract import PCAFit, Report, Training, TrainingSet, Validation
+from vpr_jax.methods.contract import Method, PCAFit, Report, Training, TrainingSet, Validation
 
 INPUTS = ("pixels", "residual")  # what the model sees: <method>.input
 
@@ -230,6 +230,24 @@ def _train(
         return fit_autoencoder(spec, data, options)
     finally:
         log.close()
+
+
+def autoencoder_method(name: str, fit: Callable, settings: type, report: Callable) -> Method:
+    """An auto-encoder's declarations: trained from the runner's validation places, training
+    folder, devices and (with a residual input) the pair's PCA fit; once per seed and per
+    objective, each objective its own rows."""
+    return Method(
+        fit=fit,
+        encode=ae.encode_state,
+        settings=settings,
+        uses=("validation", "training", "mesh", "pca_fit"),
+        random=True,
+        variants="objective",
+        check=lambda s, training, log: without_aligned_places(name, s, training, log),
+        check_devices=check_devices,
+        pca_components=pca_components,
+        report=report,
+    )
 
 
 def report(state: ae.ModelState, settings: dict, basis: np.ndarray | None = None) -> Report:

@@ -12,7 +12,7 @@ import dataclasses
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.errors import UserError
 from vpr_jax.methods import autoencoder
-from vpr_jax.methods.contract import Method, PCAFit, Training, TrainingSet, Validation
+from vpr_jax.methods.contract import PCAFit, Training, Validation
 from vpr_jax.shapes import IMAGE_SHAPE
 
 # fast: 2x2 pixel blocks to channels (no convolution at full resolution), two 3x3 levels of
@@ -112,19 +112,4 @@ def fit(
     )
 
 
-def check(settings: Settings, training: TrainingSet, log) -> Settings:
-    return autoencoder.without_aligned_places("cae", settings, training, log)
-
-
-method = Method(
-    fit=fit,
-    encode=ae.encode_state,
-    settings=Settings,
-    uses=("validation", "training", "mesh", "pca_fit"),
-    random=True,
-    variants="objective",
-    check=check,
-    check_devices=autoencoder.check_devices,
-    pca_components=autoencoder.pca_components,
-    report=autoencoder.report,
-)
+method = autoencoder.autoencoder_method("cae", fit, Settings, autoencoder.report)

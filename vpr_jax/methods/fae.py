@@ -12,7 +12,7 @@ import numpy as np
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.errors import UserError
 from vpr_jax.methods import autoencoder
-from vpr_jax.methods.contract import Method, PCAFit, Report, Training, TrainingSet, Validation
+from vpr_jax.methods.contract import PCAFit, Report, Training, Validation
 
 INITS = ("random", "pca", "whitened_pca")  # how the weights start: fae.init
 
@@ -93,19 +93,4 @@ def _report(state: ae.ModelState, settings: dict) -> Report:
     return autoencoder.report(state, settings, np.asarray(state.params["encoder"]["kernel"]).T)
 
 
-def check(settings: Settings, training: TrainingSet, log) -> Settings:
-    return autoencoder.without_aligned_places("fae", settings, training, log)
-
-
-method = Method(
-    fit=fit,
-    encode=ae.encode_state,
-    settings=Settings,
-    uses=("validation", "training", "mesh", "pca_fit"),
-    random=True,
-    variants="objective",
-    check=check,
-    check_devices=autoencoder.check_devices,
-    pca_components=autoencoder.pca_components,
-    report=_report,
-)
+method = autoencoder.autoencoder_method("fae", fit, Settings, _report)
