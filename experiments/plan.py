@@ -15,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from experiments import resolve  # loads each method's module (JAX) only when it resolves
 from vpr_jax.config import (
     BENCHMARK_PAIRS,
     BENCHMARK_SOURCES,
@@ -27,6 +28,8 @@ from vpr_jax.data.precomputed import OutsideSide, read_precomputed
 from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
+from vpr_jax.methods.contract import TrainingSet
+from vpr_jax.methods.settings import effective
 from vpr_jax.outputs.logdir import check_same_config, identity, prepare_logdir
 from vpr_jax.progress import Log
 
@@ -40,10 +43,10 @@ class Plan(NamedTuple):
     route: Route | None  # loaded, screened and preprocessed (a benchmark's training route)
     split: Split | None  # of the route
     benchmark: Benchmark | None = None  # data.source is a benchmark: its one pair
-    methods: tuple = ()  # cfg.methods loaded, settings checked (experiments.resolve.Resolved)
-    fits: tuple = ()  # every method's fits in each pair, in order (experiments.resolve.Fit)
+    methods: tuple[resolve.Resolved, ...] = ()  # cfg.methods loaded, settings checked
+    fits: tuple[resolve.Fit, ...] = ()  # every method's fits in each pair, in order
     outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed set -> side -> descriptors
-    training_sets: dict[str, Any] = {}  # method -> what its checks saw (contract.TrainingSet)
+    training_sets: dict[str, TrainingSet] = {}  # method -> what its checks saw
     pca_components: int = 0  # of the pairs' shared PCA fit (0: no method uses it)
     shared_fit: tuple[Callable, Any] | None = None  # its function and settings
     identity: dict = {}  # the config's part that decides every cell (outputs.logdir)
@@ -132,8 +135,6 @@ def make_plan(
     route or benchmark, split the route, and fit the methods' settings and the removed-PC
     counts to the training set (``given``: the keys set on the command line; ``asked``:
     those and the preset's, see ``config.asked_keys``)."""
-    from experiments import resolve  # the methods' modules: JAX
-
     asked = given if asked is None else asked
     logdir = Path(cfg.logdir).expanduser().resolve()
     benchmark = cfg.data.source in BENCHMARK_SOURCES
@@ -236,22 +237,15 @@ def _load(cfg: SweepConfig, benchmark: bool, log: Log) -> _Data:
 def _with_effective_settings(cfg: SweepConfig, methods) -> SweepConfig:
     """``cfg`` with every method's settings as it runs them (defaults filled in, checked,
     fitted to the training set, axes as lists): what config.yaml records."""
-    from vpr_jax.methods.settings import effective
-
     builtin, plugins = {}, dict(cfg.plugin)
     for r in methods:
-        settings = plain(effective(r.method.settings, list(r.combinations), _given(cfg, r)))
+        given = resolve.given_settings(cfg, r.info)
+        settings = plain(effective(r.method.settings, list(r.combinations), given))
         if r.info.plugin:
             plugins[r.name] = settings
         else:
             builtin[r.name] = settings
     return dataclasses.replace(cfg, plugin=plugins, **builtin)
-
-
-def _given(cfg: SweepConfig, r) -> dict:
-    from experiments.resolve import given_settings
-
-    return given_settings(cfg, r.info)
 
 
 def _pca_components(methods, sets, n_images: int, n_pixels: int) -> int:
