@@ -116,7 +116,7 @@ class DataConfig:
                 f"data.frame_range={list(self.frame_range)} is not [first, last]: e.g. "
                 "data.frame_range=[202,35582]",
             )
-        framed = ("nordland_images", "nordland_videos", "folders", "nordland_star")
+        framed = (*NORDLAND_SOURCES, "nordland_star")
         for key in ("frame_list", "frame_range"):
             _check(
                 self.source in framed or getattr(self, key) is None,

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import typing
 from typing import Literal, NamedTuple
 
 import jax
@@ -39,7 +40,7 @@ from threadpoolctl import threadpool_limits
 from vpr_jax.encoders import pca
 
 Fun = Literal["logcosh", "exp", "cube"]
-FUNS = ("logcosh", "exp", "cube")
+FUNS: tuple[str, ...] = typing.get_args(Fun)  # the contrasts ica.fun names
 
 
 class ICAState(NamedTuple):

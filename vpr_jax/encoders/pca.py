@@ -25,6 +25,7 @@ A removed count's descriptor has two forms with the same cosine similarities:
 from __future__ import annotations
 
 import functools
+import typing
 from typing import Literal, NamedTuple
 
 import jax
@@ -38,7 +39,7 @@ from vpr_jax import sharding
 from vpr_jax.sharding import AXIS
 
 Solver = Literal["auto", "covariance", "gram", "subspace"]
-SOLVERS: tuple[str, ...] = ("auto", "covariance", "gram", "subspace")
+SOLVERS: tuple[str, ...] = typing.get_args(Solver)  # what pca.solver names
 Output = Literal["coefficients", "pixels"]
 
 

@@ -30,7 +30,7 @@ __all__ = [
     "pr_curve",
 ]
 
-PRConvention = Literal["vpr_bench", "has_match", "vpr_tutorial"]
+PRConvention = Literal[PR_CONVENTIONS]  # one of config.PR_CONVENTIONS
 DEFAULT_KS: tuple[int, ...] = (1, 5, 10)
 PRPoints = Float[np.ndarray, " n_points"]
 SCALAR_NAMES: tuple[str, ...] = (
