@@ -172,6 +172,10 @@ def _setting_text(row: ResultRow) -> str:
     )
 
 
+def _seeds_text(rows: list[ResultRow]) -> str:
+    return f"(mean of {len(rows)} seeds)" if len(rows) > 1 else ""
+
+
 def write_tb_summaries(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: SweepConfig):
     """Per season pair, one TensorBoard run holding every method's selected cell
     (``vpr_jax.outputs.tb.write_pair_summary``; several seeds: their mean, the PR curve of
@@ -184,7 +188,7 @@ def write_tb_summaries(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: 
             by_pair.setdefault(pair, []).append(
                 SummaryCell(
                     label=label + (f"_ds{ds:02d}" if ds != 1 else ""),
-                    setting=_setting_text(at_ds[0]),
+                    setting=" ".join(x for x in (_setting_text(at_ds[0]), _seeds_text(at_ds)) if x),
                     scalars={
                         name: float(np.mean([getattr(r, name) for r in at_ds]))
                         for name in SCALAR_NAMES
