@@ -160,22 +160,22 @@ def export_cell(
         }
         files.copy_encoder(folder, staging, selection)
     recall = float(correct[:, 0].sum() / len(correct))  # metrics.evaluate_matches' recall@1
-    facts = _facts(plan.logdir, top_k, pair, row, folder, recall, db.shape)
+    facts = _facts(plan, top_k, pair, row, folder, recall, db.shape)
     (staging / "README.txt").write_text(files.readme(facts, config_yaml(cfg)))
     replace_folder(staging, out / pair.name / name)
     return recall
 
 
-def _facts(logdir, top_k, pair: PairData, row: ResultRow, folder, recall: float, shape) -> dict:
+def _facts(plan: Plan, top_k, pair: PairData, row: ResultRow, folder, recall: float, shape) -> dict:
     named = [row.setting, f"removed_pcs={row.removed_pcs}" if sweeps_removed_pcs(row) else ""]
     setting = " ".join(x for x in named if x) or "-"
     return {
-        "exported from": f"{logdir} (run {row.run})",
+        "exported from": f"{plan.logdir} (run {row.run})",
         "suite version": suite_version(),
         "pair": f"{pair.name}: database {pair.db_season}, queries {pair.query_season}",
         "method": row.method
         + (f", objective {row.objective}" if row.objective else "")
-        + (f", seed {row.seed}" if row.seed != 0 else ""),
+        + (f", seed {row.seed}" if row.seed != plan.cfg.seed else ""),
         "setting": setting
         + (" (chosen on the validation places)" if row.selected else " (not the chosen one)"),
         "sequence length": f"ds={row.ds}" + (" (sequence scores)" if row.ds > 1 else ""),

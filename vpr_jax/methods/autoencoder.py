@@ -124,18 +124,23 @@ def augment_variants(settings: TrainConfig) -> tuple[tuple[str, TrainConfig], ..
 
 
 class Model(NamedTuple):
-    """One auto-encoder fit as its method describes it."""
+    """What tells one auto-encoder from the other: its architecture and its start."""
 
-    name: str  # the method's: folds into the key, so fae and cae start from other draws
     spec: Callable[[int], ae.Spec]  # removed components -> the architecture
     start: Start | None  # other starting weights than the drawn ones (the FAE's linear start)
-    objective: str
-    epochs: int | None  # overrides train.epochs
-    settings: dict  # every setting of the fit: part of the checkpoint's identity
+
+
+class Fit(NamedTuple):
+    """One fit of an auto-encoder method."""
+
+    name: str  # the method's: folds into the key, so fae and cae start from other draws
+    model: Model
+    values: dict  # every setting of the fit (its objective, epochs...): part of the
+    # checkpoint's identity
 
 
 def fit_model(
-    model: Model,
+    fit: Fit,
     train: np.ndarray,
     key: jax.Array,
     *,
@@ -147,17 +152,17 @@ def fit_model(
     """Train (or resume, or restore) the fit's model and keep its best epoch; with
     ``train.augment=auto`` the better of two models on validation (the first on a tie)."""
     removal = residual_input(pca_fit, validation) if pca_fit is not None else None
-    spec = model.spec(removal.k if removal else 0)
-    settings = dataclasses.replace(
-        training.settings, epochs=model.epochs or training.settings.epochs
-    )
-    key = jax.random.fold_in(key, zlib.crc32(model.name.encode()))
+    spec = fit.model.spec(removal.k if removal else 0)
+    epochs = fit.values["epochs"] or training.settings.epochs  # <method>.epochs overrides
+    settings = dataclasses.replace(training.settings, epochs=epochs)
+    key = jax.random.fold_in(key, zlib.crc32(fit.name.encode()))
+    objective = fit.values["objective"]
     data = TrainingData(
-        objectives.training_data(model.objective, train),
-        objectives.training_data(model.objective, validation.images),
+        objectives.training_data(objective, train),
+        objectives.training_data(objective, validation.images),
     )
     trained = [
-        _train(model, suffix, spec, variant, data, key, removal, validation, training, mesh)
+        _train(fit, suffix, spec, variant, data, key, removal, validation, training, mesh)
         for suffix, variant in augment_variants(settings)
     ]
     best = max(trained, key=lambda r: r.best_score)  # the first on a tie
@@ -182,7 +187,7 @@ def fit_model(
 
 
 def _train(
-    model: Model,
+    fit: Fit,
     suffix: str,
     spec: ae.Spec,
     settings: TrainConfig,
@@ -212,19 +217,19 @@ def _train(
     options = TrainOptions(
         key=key,
         settings=settings,
-        objective=model.objective,
+        objective=fit.values["objective"],
         validate=lambda encode: validation.recall_at_1(encode)[0],
         checkpoint_dir=folder,
         identity={
             **training.identity,
-            "model": plain(model.settings),
+            "model": plain(fit.values),
             "train": training_identity(settings),
         },
         log=log,
         name=name,
         mesh=mesh,
         fixed=removal.fixed if removal else None,
-        start=model.start,
+        start=fit.model.start,
     )
     try:
         return fit_autoencoder(spec, data, options)
@@ -232,10 +237,35 @@ def _train(
         log.close()
 
 
-def autoencoder_method(name: str, fit: Callable, settings: type, report: Callable) -> Method:
-    """An auto-encoder's declarations: trained from the runner's validation places, training
-    folder, devices and (with a residual input) the pair's PCA fit; once per seed and per
-    objective, each objective its own rows."""
+def autoencoder_method(
+    name: str, model_of: Callable[[np.ndarray, dict], Model], settings: type, report: Callable
+) -> Method:
+    """An auto-encoder as a method: ``model_of(train, settings)`` its architecture and start;
+    trained from the runner's validation places, training folder, devices and (with a
+    residual input) the pair's PCA fit; once per seed and per objective, each objective its
+    own rows."""
+
+    def fit(
+        train,
+        aligned,
+        key,
+        *,
+        validation: Validation,
+        training: Training,
+        mesh,
+        pca_fit: PCAFit | None = None,
+        **values,
+    ) -> ae.ModelState:
+        return fit_model(
+            Fit(name=name, model=model_of(train, values), values=values),
+            train,
+            key,
+            validation=validation,
+            training=training,
+            mesh=mesh,
+            pca_fit=pca_fit,
+        )
+
     return Method(
         fit=fit,
         encode=ae.encode_state,

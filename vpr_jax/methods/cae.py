@@ -12,7 +12,6 @@ import dataclasses
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.errors import UserError
 from vpr_jax.methods import autoencoder
-from vpr_jax.methods.contract import PCAFit, Training, Validation
 from vpr_jax.shapes import IMAGE_SHAPE
 
 # fast: 2x2 pixel blocks to channels (no convolution at full resolution), two 3x3 levels of
@@ -80,36 +79,20 @@ def architecture(settings) -> dict:
     }
 
 
-def fit(
-    train,
-    aligned,
-    key,
-    *,
-    validation: Validation,
-    training: Training,
-    mesh,
-    pca_fit: PCAFit | None = None,
-    **settings,
-) -> ae.ModelState:
-    a = architecture(Settings(**{**settings, "objective": (settings["objective"],)}))
-    model = autoencoder.Model(
-        name="cae",
+def _model(train, s: dict) -> autoencoder.Model:
+    """The named architecture with the parts set overriding it."""
+    a = architecture(Settings(**{**s, "objective": (s["objective"],)}))
+    return autoencoder.Model(
         spec=lambda removed: ae.CAESpec(
             channels=tuple(a["channels"]),
             kernel_sizes=tuple(a["kernel_sizes"]),
             code_channels=a["code_channels"],
             space_to_depth=a["space_to_depth"],
-            standardise=settings["standardise"],
+            standardise=s["standardise"],
             removed=removed,
         ),
         start=None,
-        objective=settings["objective"],
-        epochs=settings["epochs"],
-        settings=settings,
-    )
-    return autoencoder.fit_model(
-        model, train, key, validation=validation, training=training, mesh=mesh, pca_fit=pca_fit
     )
 
 
-method = autoencoder.autoencoder_method("cae", fit, Settings, autoencoder.report)
+method = autoencoder.autoencoder_method("cae", _model, Settings, autoencoder.report)

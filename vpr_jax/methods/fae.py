@@ -12,7 +12,7 @@ import numpy as np
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.errors import UserError
 from vpr_jax.methods import autoencoder
-from vpr_jax.methods.contract import PCAFit, Report, Training, Validation
+from vpr_jax.methods.contract import Report
 
 INITS = ("random", "pca", "whitened_pca")  # how the weights start: fae.init
 
@@ -56,35 +56,19 @@ class Settings:
                 raise UserError(message)
 
 
-def fit(
-    train,
-    aligned,
-    key,
-    *,
-    validation: Validation,
-    training: Training,
-    mesh,
-    pca_fit: PCAFit | None = None,
-    **settings,
-) -> ae.ModelState:
-    s = settings
-    model = autoencoder.Model(
-        name="fae",
+def _model(train, s: dict) -> autoencoder.Model:
+    """One hidden layer of ``hidden`` units; the linear start, where asked, from ``train``."""
+    start = None
+    if s["init"] != "random":
+        start = functools.partial(ae.pca_start, images=train, whiten=s["init"] == "whitened_pca")
+    return autoencoder.Model(
         spec=lambda removed: ae.FAESpec(
             hidden=s["hidden"],
             centre=s["input_centre"],
             standardise=s["standardise"],
             removed=removed,
         ),
-        start=None
-        if s["init"] == "random"
-        else functools.partial(ae.pca_start, images=train, whiten=s["init"] == "whitened_pca"),
-        objective=s["objective"],
-        epochs=s["epochs"],
-        settings=settings,
-    )
-    return autoencoder.fit_model(
-        model, train, key, validation=validation, training=training, mesh=mesh, pca_fit=pca_fit
+        start=start,
     )
 
 
@@ -93,4 +77,4 @@ def _report(state: ae.ModelState, settings: dict) -> Report:
     return autoencoder.report(state, settings, np.asarray(state.params["encoder"]["kernel"]).T)
 
 
-method = autoencoder.autoencoder_method("fae", fit, Settings, _report)
+method = autoencoder.autoencoder_method("fae", _model, Settings, _report)
