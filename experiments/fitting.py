@@ -64,28 +64,28 @@ class PairRun(NamedTuple):
     shared: dict  # the pair's shared PCA fit, once made: {"pca_fit": PCAFit}
 
 
-def _pca_fit(run: PairRun) -> PCAFit:
-    """The pair's shared PCA fit: made on first use, as many components as the sweep's
-    methods need (``Plan.pca_components``, from the configured settings: a resumed sweep
-    fits the same)."""
+def _pca_fit(fit: Fit, run: PairRun) -> PCAFit | None:
+    """The pair's shared PCA fit as ``fit`` gets it: its leading components, as many as
+    its method declares (``pca_components``; every one when it declares none), or None
+    when it needs none. The fit is made on first use, ``Plan.pca_components`` of them
+    whichever methods use it, so each user gets what it would get alone."""
+    method = fit.method.method
+    need = None
+    if method.pca_components is not None:
+        need = method.pca_components(fit.settings, run.plan.training_sets[fit.method.name])
+        if need <= 0:
+            return None
+    declared, settings = run.plan.shared_fit
     if "pca_fit" not in run.shared:
-        fit_fn, settings = run.plan.shared_fit
         state, seconds = timed(
-            lambda x: fit_fn(x, run.plan.pca_components, settings, run.mesh, run.plan.cfg.seed),
+            lambda x: declared.fit(
+                x, run.plan.pca_components, settings, run.mesh, run.plan.cfg.seed
+            ),
             run.data.train,
         )
         run.shared["pca_fit"] = PCAFit(state, seconds, run.plan.cfg.removed_pcs)
-    return run.shared["pca_fit"]
-
-
-def _needs_pca(fit: Fit, run: PairRun) -> bool:
-    method = fit.method.method
-    if "pca_fit" not in method.uses:
-        return False
-    if method.pca_components is None:
-        return True
-    training = run.plan.training_sets[fit.method.name]
-    return method.pca_components(fit.settings, training) > 0
+    whole = run.shared["pca_fit"]
+    return whole if need is None else whole._replace(state=declared.leading(whole.state, need))
 
 
 def resources(fit: Fit, run: PairRun) -> dict[str, Any]:
@@ -93,7 +93,7 @@ def resources(fit: Fit, run: PairRun) -> dict[str, Any]:
     uses, data = fit.method.method.uses, run.data
     out: dict[str, Any] = {}
     if "pca_fit" in uses:
-        out["pca_fit"] = _pca_fit(run) if _needs_pca(fit, run) else None
+        out["pca_fit"] = _pca_fit(fit, run)
     if "validation" in uses:
         out["validation"] = Validation(
             images=data.val,

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -28,7 +27,7 @@ from vpr_jax.data.precomputed import OutsideSide, read_precomputed
 from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
-from vpr_jax.methods.contract import TrainingSet
+from vpr_jax.methods.contract import SharedFit, TrainingSet
 from vpr_jax.methods.settings import effective
 from vpr_jax.outputs.logdir import check_same_config, identity, prepare_logdir
 from vpr_jax.progress import Log
@@ -48,7 +47,7 @@ class Plan(NamedTuple):
     outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed set -> side -> descriptors
     training_sets: dict[str, TrainingSet] = {}  # method -> what its checks saw
     pca_components: int = 0  # of the pairs' shared PCA fit (0: no method uses it)
-    shared_fit: tuple[Callable, Any] | None = None  # its function and settings
+    shared_fit: tuple[SharedFit, Any] | None = None  # its declaration and settings
     identity: dict = {}  # the config's part that decides every cell (outputs.logdir)
 
     def describe(self) -> str:
@@ -173,7 +172,7 @@ def make_plan(
         fits=tuple(f for r in methods for f in resolve.fits(r, cfg)),
         outside=read_outside_sets(cfg, data.benchmark) if data.benchmark is not None else {},
         training_sets=sets,
-        pca_components=_pca_components(methods, sets, n_images, n_pixels),
+        pca_components=_pca_components(methods, sets, shared_fit, n_images, n_pixels),
         shared_fit=shared_fit,
         identity=identity(cfg),
     )
@@ -248,18 +247,21 @@ def _with_effective_settings(cfg: SweepConfig, methods) -> SweepConfig:
     return dataclasses.replace(cfg, plugin=plugins, **builtin)
 
 
-def _pca_components(methods, sets, n_images: int, n_pixels: int) -> int:
-    """The components the pairs' shared PCA fit holds: what its users need (at least 1),
-    at most the training images' rank limit; 0 when no method uses it."""
-    needed = []
-    for r in methods:
-        if "pca_fit" not in r.method.uses:
-            continue
-        declared = r.method.pca_components
-        for c in r.combinations:
-            n = 1 if declared is None else declared(c.settings, sets[r.name])
-            if n > 0:
-                needed.append(n)
-    if not needed:
+def _pca_components(methods, sets, shared_fit, n_images: int, n_pixels: int) -> int:
+    """The components the pairs' shared PCA fit holds (its own count: the same whichever
+    methods use it), checked against what each user needs; 0 when no method uses it."""
+    users = [r for r in methods if "pca_fit" in r.method.uses]
+    if not users:
         return 0
-    return min(max(1, *needed), min(n_images - 1, n_pixels))
+    declared, settings = shared_fit
+    held = declared.components(settings, n_images, n_pixels)
+    for r in users:
+        if r.method.pca_components is None:
+            continue
+        need = max(r.method.pca_components(c.settings, sets[r.name]) for c in r.combinations)
+        if need > held:
+            raise UserError(
+                f"method {r.name} needs {need} components of the pair's PCA fit, which holds "
+                f"{held}: set {declared.fix}"
+            )
+    return held

@@ -13,7 +13,6 @@ served value (pca's removed counts) x each sequence length.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from vpr_jax.config import SweepConfig
@@ -29,7 +28,7 @@ from vpr_jax.method_table import (
     model_name,
 )
 from vpr_jax.methods import settings as axes
-from vpr_jax.methods.contract import Method, TrainingSet, as_method
+from vpr_jax.methods.contract import Method, SharedFit, TrainingSet, as_method
 from vpr_jax.methods.settings import Combination
 from vpr_jax.progress import Log
 
@@ -96,8 +95,8 @@ def resolve(info: MethodInfo, given: dict) -> Resolved:
     return Resolved(info=info, method=method, group=group, combinations=combinations)
 
 
-def shared_fit_settings(cfg: SweepConfig) -> tuple[Callable, Any]:
-    """The pair's shared PCA fit: its function and its settings (``method_table.SHARED_FIT``
+def shared_fit_settings(cfg: SweepConfig) -> tuple[SharedFit, Any]:
+    """The pair's shared PCA fit: its declaration and its settings (``method_table.SHARED_FIT``
     's, whether or not that method is in ``methods``)."""
     info = METHODS[SHARED_FIT]
     provider = resolve(info, given_settings(cfg, info))

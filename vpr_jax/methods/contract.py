@@ -62,6 +62,19 @@ class TrainingSet(NamedTuple):
         return min(self.n_images - 1, self.n_pixels)
 
 
+class SharedFit(NamedTuple):
+    """The fit a pair shares with every method that ``uses`` ``pca_fit``. It holds a count
+    of components that depends on the data and its own settings only, never on which
+    methods use it, and each user is handed its ``leading`` components: a method's numbers
+    do not depend on what else is in ``methods``."""
+
+    components: Callable[[Any, int, int], int]  # (settings, n_images, n_pixels) -> the
+    # components the fit holds
+    fit: Callable[..., Any]  # (train, n_components, settings, mesh, seed) -> its state
+    leading: Callable[[Any, int], Any]  # (state, n) -> the state of its first n components
+    fix: str  # how a user gets more components than it holds (an error's advice)
+
+
 class Method(NamedTuple):
     """A method: ``fit`` and ``encode`` and what the runner needs to know about them."""
 
@@ -87,9 +100,8 @@ class Method(NamedTuple):
     report: Callable[[Any, dict], Report] | None = None  # (state, this cell's settings)
     check_devices: Callable[[Any, Any, Any], None] | None = None  # (settings, train.*, the
     # device mesh): what the devices must allow, checked before anything is written
-    shared_fit: Callable[..., Any] | None = None  # (train, n_components, settings, mesh,
-    # seed) -> the fit a pair shares with every method that uses pca_fit (the method
-    # vpr_jax.method_table.SHARED_FIT names offers it)
+    shared_fit: SharedFit | None = None  # the fit a pair shares with every method that
+    # uses pca_fit (the method vpr_jax.method_table.SHARED_FIT names offers it)
 
 
 class PCAFit(NamedTuple):

@@ -3,7 +3,11 @@ seasons' training images removed, for every k of ``removed_pcs`` from one fit.
 
 Its fit is the pair's shared PCA fit (``shared_fit``), which every method that ``uses``
 ``pca_fit`` receives too (ica whitens with it, lda whitens inside it, a residual-input
-auto-encoder removes its leading components). The descriptor of count k is the suffix
+auto-encoder removes its leading components). The shared fit solves every component
+exactly (``covariance`` or ``gram``), or, where that is too large (``FULL_SOLVE_LIMIT``) or
+``pca.solver=subspace`` asks, a fixed ``pca.subspace_components``; each user takes the
+leading components it needs, so no method's numbers depend on which others share the
+sweep. The descriptor of count k is the suffix
 ``[k:]`` of ``pca.suffix_descriptors``, coefficients then residual (``vpr_jax.encoders.pca``),
 so one encoding and one matching pass score every count; ``pca.output=pixels`` encodes
 each count in pixel space instead, as the seed did (the same similarities, slower).
@@ -19,7 +23,7 @@ from jaxtyping import Array, Float
 
 from vpr_jax.encoders import pca
 from vpr_jax.errors import UserError
-from vpr_jax.methods.contract import Method, PCAFit, Report
+from vpr_jax.methods.contract import Method, PCAFit, Report, SharedFit
 
 OUTPUTS = ("coefficients", "pixels")
 
@@ -30,8 +34,13 @@ class Settings:
 
     solver: str = "auto"  # auto | covariance | gram | subspace (vpr_jax.encoders.pca)
     output: str = "coefficients"  # coefficients | pixels (the seed's back-projection)
+    subspace_components: int = 512  # what the subspace solver fits, whichever methods use it
 
     def __post_init__(self):
+        if self.subspace_components < 1:
+            raise UserError(
+                f"pca.subspace_components={self.subspace_components} must be at least 1"
+            )
         if self.solver not in pca.SOLVERS:
             raise UserError(f"pca.solver={self.solver} is unknown: use {', '.join(pca.SOLVERS)}")
         if self.output not in OUTPUTS:
@@ -44,13 +53,38 @@ class InPixels(NamedTuple):
     fit: pca.PCAState
 
 
+# Above this many components (min(N - 1, D)), auto solves only the leading
+# pca.subspace_components: an exact solve's eigh would take minutes (4,096: about 7 s).
+FULL_SOLVE_LIMIT = 4096
+
+
+def _solver(settings: Settings, n_images: int, n_pixels: int) -> str:
+    """The solver of the shared fit: ``pca.solver``; ``auto``: an exact one up to
+    ``FULL_SOLVE_LIMIT`` components, else ``subspace``."""
+    if settings.solver != "auto":
+        return settings.solver
+    if pca.rank_limit(n_images, n_pixels) > FULL_SOLVE_LIMIT:
+        return "subspace"
+    return pca.choose_solver(n_images, n_pixels)
+
+
+def shared_components(settings: Settings, n_images: int, n_pixels: int) -> int:
+    """The components the pair's fit holds: every one, or ``pca.subspace_components``."""
+    limit = pca.rank_limit(n_images, n_pixels)
+    if _solver(settings, n_images, n_pixels) == "subspace":
+        return min(settings.subspace_components, limit)
+    return limit
+
+
 def shared_fit(train, n_components: int, settings: Settings, mesh, seed: int) -> pca.PCAState:
-    """The pair's PCA fit: its leading ``n_components`` (what its users need)."""
-    return pca.fit_pca(train, n_components, solver=settings.solver, mesh=mesh, seed=seed)
+    """The pair's PCA fit of ``n_components`` (``shared_components``)."""
+    n_pixels = int(np.prod(np.shape(train)[1:]))
+    solver = _solver(settings, len(train), n_pixels)
+    return pca.fit_pca(train, n_components, solver=solver, mesh=mesh, seed=seed)
 
 
-def fit(train, aligned, key, *, pca_fit: PCAFit, solver: str, output: str):
-    """The pair's shared fit is PCA's own."""
+def fit(train, aligned, key, *, pca_fit: PCAFit, output: str, **shared_settings):
+    """The pair's shared fit is PCA's own (``shared_settings`` shaped it)."""
     return InPixels(pca_fit.state) if output == "pixels" else pca_fit.state
 
 
@@ -78,5 +112,10 @@ method = Method(
     random=False,
     pca_components=lambda s, training: max(training.removed_pcs),
     report=_report,
-    shared_fit=shared_fit,
+    shared_fit=SharedFit(
+        components=shared_components,
+        fit=shared_fit,
+        leading=pca.leading,
+        fix="pca.solver=covariance (every component), or a larger pca.subspace_components",
+    ),
 )
