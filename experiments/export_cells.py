@@ -27,6 +27,18 @@ from vpr_jax.outputs.logdir import config_yaml, saved_config
 from vpr_jax.outputs.results import ResultRow, read_results, selected_rows, sweeps_removed_pcs
 from vpr_jax.progress import Log
 
+# README.txt lines of a single-image cell: its hloc file and how hloc reads it
+HLOC_FEATS = (
+    "global-feats.h5: the same rows L2-normalised (float32) in hloc's layout, a group per "
+    "name of database.txt and queries.txt (a / in a name nests groups) holding "
+    "global_descriptor; no name is both a database and a query image"
+)
+HLOC_USE = (
+    "python -m hloc.pairs_from_retrieval --descriptors global-feats.h5 --output "
+    "pairs-hloc.txt --num_matched {top_k} --db_list database.txt --query_list queries.txt: "
+    "its dot product on these rows is the cosine, so it ranks as pairs.txt does, but drops "
+    "pairs scoring below 0 (min_score=0)"
+)
 SavedEncoders = dict[str, tuple[Path, dict]]  # a cell's run (less ds) -> its fit's folder, served
 
 
@@ -147,6 +159,7 @@ def export_cell(
     if row.ds == 1:
         files.write_descriptors(staging, "database", db)
         files.write_descriptors(staging, "queries", query)
+        files.write_global_features(staging, pair.names.db, db, pair.names.query, query)
     files.write_retrieval(staging, pair.names.query, pair.names.db, scores, idx, correct)
     if folder is not None:
         selection = {
@@ -183,9 +196,14 @@ def _facts(plan: Plan, top_k, pair: PairData, row: ResultRow, folder, recall: fl
         "ground truth": pair.truth.describe(),
         "validation recall@1": f"{row.val_recall_at_1:.4f} (results.csv)",
         "test recall@1": f"{row.recall_at_1:.4f} (results.csv); {recall:.4f} from pairs.txt",
-        "descriptors": f"database.npy, queries.npy: float32, {shape[1]} features, cosine"
+        "descriptors": f"database.npy, queries.npy: float32, {shape[1]} features, as the "
+        "encoder produced them (not normalised: the sweep ranked them by cosine)"
         if row.ds == 1
         else "none: sequence matching ranks sequences of descriptors, not single ones",
+        "global features": HLOC_FEATS
+        if row.ds == 1
+        else "none (no global-feats.h5): hloc ranks single images, pairs.txt sequences",
+        **({"with hloc": HLOC_USE.format(top_k=top_k)} if row.ds == 1 else {}),
         "pairs": f"pairs.txt, scores.csv: top {top_k} per query, best first",
         "encoder": "this folder: vpr_jax.load_encoder(folder) -> (encode_fn, params)"
         if folder is not None

@@ -192,6 +192,61 @@ def test_exported_descriptors_rematched_by_numpy_give_the_same_best_match(bench)
     assert not list(sequence.glob("*.npy")) and (sequence / "pairs.txt").is_file()
 
 
+def read_global_feats(path: Path, names: list[str]) -> tuple[np.ndarray, list[str]]:
+    """(each name's ``global_descriptor``, float32 checked, as hloc reads it; the path of
+    every dataset in the file, from which hloc lists the names)."""
+    import h5py
+
+    datasets = []
+    with h5py.File(path, "r") as f:
+        f.visititems(
+            lambda key, obj: datasets.append(key) if isinstance(obj, h5py.Dataset) else None
+        )
+        for n in names:
+            assert f[n]["global_descriptor"].dtype == np.float32, n
+        return np.stack([f[n]["global_descriptor"][()] for n in names]), datasets
+
+
+def test_global_feats_h5_holds_the_npy_rows_normalised_in_hlocs_layout(bench):
+    """Read as hloc reads it (a group per name, its ``global_descriptor``; hloc lists the
+    names from the datasets): every name of database.txt and queries.txt, hence of
+    pairs.txt, and nothing else; unit rows equal to the .npy rows normalised by numpy; the
+    plain dot product hloc ranks by puts each query's first pairs.txt line first."""
+    chosen = exported(bench)
+    for name in (n for n in chosen if "_ds" not in n):
+        folder = bench / "export" / "ref-query" / name
+        queries, lists = read_pairs(folder)
+        db_names = (folder / "database.txt").read_text().split()
+        assert {m for matched in lists for m in matched} <= set(db_names)
+        rows, found = read_global_feats(folder / "global-feats.h5", [*db_names, *queries])
+        db, query = rows[: len(db_names)], rows[len(db_names) :]
+        assert sorted(found) == sorted(f"{n}/global_descriptor" for n in [*db_names, *queries])
+        for got, npy in ((db, "database.npy"), (query, "queries.npy")):
+            x = np.load(folder / npy).astype(np.float64)
+            np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-6, err_msg=name)
+            normalised = x / np.linalg.norm(x, axis=1, keepdims=True)
+            np.testing.assert_allclose(got, normalised, rtol=1e-6, atol=1e-7, err_msg=name)
+        best = np.argmax(query @ db.T, axis=1)
+        assert [db_names[b] for b in best] == [matched[0] for matched in lists], name
+        readme = (folder / "README.txt").read_text()
+        assert "as the encoder produced them (not normalised" in readme
+        assert "L2-normalised" in readme and "hloc.pairs_from_retrieval" in readme
+    assert not (bench / "export" / "ref-query" / "pca_ds04" / "global-feats.h5").exists()
+
+
+def test_a_name_on_both_sides_is_refused_not_renamed(tmp_path):
+    """hloc keys global-feats.h5 by name: a database and a query image of one name cannot
+    both be stored under it, so the file is refused (one line) rather than renamed."""
+    from vpr_jax.outputs import export as files
+
+    db_names = np.array(["ref/a.png", "same.png"], dtype=object)
+    query_names = np.array(["same.png"], dtype=object)
+    rows = np.ones((2, 4), np.float32)
+    with pytest.raises(UserError, match="image same.png is both a database and a query name"):
+        files.write_global_features(tmp_path, db_names, rows, query_names, rows[:1])
+    assert not (tmp_path / "global-feats.h5").exists()
+
+
 def test_each_exported_folder_is_an_encoder_that_reproduces_its_descriptors(bench, tmp_path):
     """Moved elsewhere, every folder loads with vpr_jax.load_encoder; encoding the images
     its txt files name gives its .npy rows. Outside descriptors have no encoder."""

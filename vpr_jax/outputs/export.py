@@ -5,7 +5,11 @@ One folder per pair and method (``experiments.export`` fills it):
 - ``database.txt``, ``queries.txt``: one image name per line, in row order (``Route.names``:
   the file's path relative to ``data.root``, or ``<season>/<frame id>``);
 - ``database.npy``, ``queries.npy``: float32 descriptors in those rows, the vectors the
-  sweep compared by cosine (single-image cells only);
+  sweep compared by cosine, as the encoder produced them (single-image cells only);
+- ``global-feats.h5``: the same descriptors in hloc's global-feature layout, a group per
+  image name (the names of the txt files; a ``/`` in a name nests groups, as in hloc) holding
+  ``global_descriptor``, float32 and L2-normalised, so hloc's dot-product ranking
+  (``pairs_from_retrieval``) is the sweep's cosine ranking (single-image cells only);
 - ``pairs.txt``: hloc's pairs-file format, ``query_name database_name`` per line, ``top_k``
   lines per query, best first; ``scores.csv``: ``query,database,rank,score,correct``;
 - the saved encoder's files (``vpr_jax.load_encoder`` works on the folder itself), with
@@ -23,13 +27,17 @@ import json
 import shutil
 from pathlib import Path
 
+import h5py  # ~30 ms beside numpy; loaded with JAX, after the CLI's cheap checks
 import numpy as np
 
 from vpr_jax.encoders.saved import ENCODER_JSON
+from vpr_jax.errors import UserError
 
 PAIRS_TXT, SCORES_CSV = "pairs.txt", "scores.csv"
 NAMES_TXT = {"database": "database.txt", "queries": "queries.txt"}
 DESCRIPTORS_NPY = {"database": "database.npy", "queries": "queries.npy"}
+GLOBAL_FEATS_H5, GLOBAL_DESCRIPTOR = "global-feats.h5", "global_descriptor"  # hloc's names
+_EPS = 1e-12  # vpr_jax.evaluation.matching's: a zero descriptor stays zero
 SCORE_COLUMNS = ("query", "database", "rank", "score", "correct")
 _SKIPPED = {".lock", ENCODER_JSON}  # not copied from a saved encoder's folder
 
@@ -43,6 +51,38 @@ def write_names(folder: Path, side: str, names: np.ndarray) -> None:
 def write_descriptors(folder: Path, side: str, descriptors: np.ndarray) -> None:
     """``database.npy`` or ``queries.npy``: float32 ``(n, d)``, no pickle."""
     np.save(folder / DESCRIPTORS_NPY[side], np.asarray(descriptors, np.float32), allow_pickle=False)
+
+
+def unit_rows(descriptors: np.ndarray) -> np.ndarray:
+    """float32 ``(n, d)``: each row divided by its L2 norm (in float64), as the sweep's
+    cosine divides it; a zero row stays zero."""
+    x = np.asarray(descriptors, np.float64)
+    norm = np.sqrt(np.sum(x * x, axis=1, keepdims=True))
+    return (x / np.maximum(norm, _EPS)).astype(np.float32)
+
+
+def write_global_features(
+    folder: Path,
+    db_names: np.ndarray,
+    db: np.ndarray,
+    query_names: np.ndarray,
+    query: np.ndarray,
+) -> None:
+    """``global-feats.h5`` in hloc's layout: a group per image name holding
+    ``global_descriptor``, the row L2-normalised (``unit_rows``). hloc keys images by name
+    alone, so a name on both sides (which would also be masked as a self-match there) is
+    refused rather than renamed: the names must stay those of pairs.txt."""
+    shared = sorted(set(db_names) & set(query_names))
+    if shared:
+        raise UserError(
+            f"image {shared[0]} is both a database and a query name ({len(shared):,} such "
+            "names): hloc's global-feats.h5 keys images by name, so keep the database and "
+            "the queries in different folders"
+        )
+    with h5py.File(folder / GLOBAL_FEATS_H5, "w") as f:
+        for names, rows in ((db_names, unit_rows(db)), (query_names, unit_rows(query))):
+            for name, row in zip(names, rows, strict=True):
+                f.create_group(str(name)).create_dataset(GLOBAL_DESCRIPTOR, data=row)
 
 
 def write_retrieval(
