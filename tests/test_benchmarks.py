@@ -158,6 +158,7 @@ def test_nordland_star_from_a_tiny_release(route, tmp_path):
     proc = run_cli(
         "preset=nordland_star",
         f"data.root={root}",
+        "data.frame_list=null",  # every frame: the tiny release has none of the clean list's
         "data.frame_range=[11,110]",
         "removed_pcs=[0,5]",
         "methods=[raw,pca]",
@@ -187,6 +188,7 @@ def test_nordland_clean_reads_its_frame_range(route, tmp_path):
     proc = run_cli(
         "preset=nordland_clean",
         f"data.root={root}",
+        "data.frame_list=null",  # every frame: the tiny release has none of the clean list's
         "data.frame_range=[3,118]",
         "split.n_test=20",
         "split.gap=5",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -11,8 +12,9 @@ import pytest
 
 from tests.conftest import LogLines
 from tests.inputs import frame_image, second_level, source_frame, write_release, write_video
-from vpr_jax.data import nordland
-from vpr_jax.data.frames import frame_id_from_name, parse_frame_list
+from vpr_jax.config import parse_config
+from vpr_jax.data import load_data, nordland
+from vpr_jax.data.frames import LIST_DIR, frame_id_from_name, frame_list_path, parse_frame_list
 from vpr_jax.data.nordland import load_nordland, read_folders, read_image_release, read_videos
 from vpr_jax.data.route import IMAGE_SHAPE
 from vpr_jax.errors import UserError
@@ -110,6 +112,74 @@ def test_frame_list_naming_absent_frames_is_an_error(tmp_path):
         read_image_release(tmp_path, ["spring", "summer"], frame_list=listing, log=LogLines())
     with pytest.raises(UserError, match="does not exist"):
         read_image_release(tmp_path, ["spring"], frame_list=tmp_path / "nope.txt", log=LogLines())
+
+
+def test_frame_range_narrows_a_list_to_the_frames_the_data_holds(tmp_path):
+    for season in ("spring", "summer"):
+        make_release(tmp_path, season, range(1, 21))
+    listing = tmp_path / "frames.txt"
+    listing.write_text("2-4\n9\n40-45\n")  # 40..45 are not in the data
+    route = read_image_release(
+        tmp_path, ["spring", "summer"], frame_list=listing, frame_range=(1, 20), log=LogLines()
+    )
+    np.testing.assert_array_equal(route.frame_ids, [2, 3, 4, 9])
+    with pytest.raises(UserError, match=r"keeps none of the frames listed in .*frame_list=null"):
+        read_image_release(
+            tmp_path, ["spring", "summer"], frame_list=listing, frame_range=(5, 8), log=LogLines()
+        )
+    # The built-in list on data without its frames: the fix names the list's own ways out.
+    with pytest.raises(UserError, match=r"frame list nordland_clean names 27,592 frames absent"):
+        read_image_release(tmp_path, ["spring"], frame_list="nordland_clean", log=LogLines())
+    with pytest.raises(UserError, match=r"keeps none of the frames listed in nordland_clean"):
+        read_image_release(
+            tmp_path, ["spring"], frame_list="nordland_clean", frame_range=(1, 20), log=LogLines()
+        )
+
+
+def test_the_shipped_clean_list_is_the_published_one():
+    """vpr_jax/data/lists/nordland_clean.txt: Patch-NetVLAD's 27,592 frames, 202..35582, in
+    182 runs (its header names the source); a path, not the name, reads a file."""
+    assert frame_list_path("nordland_clean") == LIST_DIR / "nordland_clean.txt"
+    assert frame_list_path("./nordland_clean") == Path("nordland_clean")
+    assert frame_list_path(Path("nordland_clean")) == Path("nordland_clean")
+    frames = parse_frame_list("nordland_clean")
+    assert frames.dtype == np.int64 and frames.size == 27_592
+    assert (frames[0], frames[-1]) == (202, 35_582)
+    assert np.all(np.diff(frames) > 0)
+    assert np.count_nonzero(np.diff(frames) > 1) == 181  # tunnels and stops: 182 ranges
+    text = (LIST_DIR / "nordland_clean.txt").read_text()
+    assert "QVPR/Patch-NetVLAD" in text and "b07289d4e6e3ccbb9cabad4297bea37a0a33a843" in text
+
+
+@pytest.mark.timeout(60)
+def test_nordland_star_preset_reads_the_published_frames_of_a_whole_release(tmp_path):
+    """preset=nordland_star on the release's 35,768 frames a season (blank ones, all the
+    same PNG) keeps exactly the shipped list: 27,592 references, every 10th a query. Blank
+    frames are constant; the preset keeps them (the list is the selection), so the count
+    is the list's whatever the pixels show."""
+    ok, png = cv2.imencode(".png", np.zeros(IMAGE_SHAPE, np.uint8))
+    assert ok
+    root = tmp_path / "release"
+    for season in ("summer", "winter"):
+        folder = root / season
+        folder.mkdir(parents=True)
+        # Hard links to one file a season (ext4 allows 65,000 a file): fast to write.
+        blank = tmp_path / f"{season}.png"
+        blank.write_bytes(png.tobytes())
+        for frame in range(1, 35_769):
+            os.link(blank, folder / f"images-{frame:05d}.png")
+    cfg = parse_config(["preset=nordland_star", f"data.root={root}"])
+    assert cfg.data.frame_list == "nordland_clean" and cfg.data.frame_range is None
+    assert not cfg.data.drop_constant_frames
+    log = LogLines()
+    bench = load_data(cfg.data, cfg.seed, log=log)
+    listed = parse_frame_list("nordland_clean")
+    assert (len(bench.db), len(bench.query)) == (27_592, 2_760)
+    np.testing.assert_array_equal(bench.db_ids, listed)
+    np.testing.assert_array_equal(bench.query_ids, listed[::10])
+    assert (bench.db_name, bench.query_name) == ("winter", "summer")
+    assert any("27,592 frames x 2 seasons" in line and "202..35582" in line for line in log)
+    assert any("constant frames" in line and "kept" in line for line in log)
 
 
 def test_frame_list_parsing(tmp_path):

@@ -66,7 +66,9 @@ class DataConfig:
     seasons: tuple[str, ...] = ("spring", "summer", "fall")
     n_frames: int = 3600  # synthetic only: route length in frames per season
     frame_step: int = 1  # keep every step-th frame (10 on the full route gives ~3,577)
-    frame_list: str | None = None  # Nordland sources: file of frame names / ranges to keep
+    # Nordland sources: file of frame names / ranges to keep, or a built-in list's name
+    # (nordland_clean: the published clean list, vpr_jax/data/lists/)
+    frame_list: str | None = None
     cache_dir: str = "~/.cache/vpr_jax"  # decoded videos are cached here as .npz
     # Places where a season shows a constant frame (tunnel, over-exposure) are always
     # counted in the run log; true drops them from every season before the split.

@@ -8,6 +8,10 @@ A frame list is a text file with one entry a line, in any mix of
   ``images-00202.png``
 
 Blank lines and ``#`` comments (whole line or trailing) are ignored.
+
+A list shipped with the package is named instead of a path (:data:`BUILT_IN_LISTS`):
+``nordland_clean`` is the published clean Nordland list (``lists/nordland_clean.txt``, its
+source in its header).
 """
 
 from __future__ import annotations
@@ -24,6 +28,10 @@ _INT = re.compile(r"\d+")
 _NUMBER_LINE = re.compile(r"^\d+$")
 _RANGE_LINE = re.compile(r"^(\d+)\s*-\s*(\d+)$")
 
+# Frame lists shipped in lists/ (data.frame_list=NAME reads lists/NAME.txt).
+BUILT_IN_LISTS = ("nordland_clean",)
+LIST_DIR = Path(__file__).resolve().parent / "lists"
+
 # A list this long is a typo (e.g. "0-999999999"), not a route: Nordland has ~35,768 frames.
 MAX_LISTED_FRAMES = 10_000_000
 
@@ -38,10 +46,28 @@ def frame_id_from_name(name: str | os.PathLike) -> int | None:
     return int(numbers[-1]) if numbers else None
 
 
+def is_built_in(frame_list: str | os.PathLike) -> bool:
+    """Whether ``frame_list`` names a list shipped with the package, not a file (a Path
+    object is always a file)."""
+    return isinstance(frame_list, str) and frame_list in BUILT_IN_LISTS
+
+
+def frame_list_path(frame_list: str | os.PathLike) -> Path:
+    """The file a ``data.frame_list`` value names: a built-in list's name is its copy in
+    :data:`LIST_DIR` (``./nordland_clean`` is a file of that name), anything else a path."""
+    if is_built_in(frame_list):
+        return LIST_DIR / f"{frame_list}.txt"
+    return Path(frame_list)
+
+
 def parse_frame_list(path: str | os.PathLike) -> np.ndarray:
-    """Read a frame-list file into sorted unique frame ids, shape (K,) int64."""
-    path = Path(path)
-    fix = "set data.frame_list=PATH to a text file of frame ids, ranges like 202-35582 or names"
+    """Read a frame-list file, or a built-in list by name, into sorted unique frame ids,
+    shape (K,) int64."""
+    path = frame_list_path(path)
+    fix = (
+        "set data.frame_list=PATH to a text file of frame ids, ranges like 202-35582 or "
+        f"names, or to a built-in list ({', '.join(BUILT_IN_LISTS)})"
+    )
     if not path.exists():
         raise UserError(f"frame list {path} does not exist: {fix}")
     if not path.is_file():

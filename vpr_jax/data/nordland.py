@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from vpr_jax.config import NORDLAND_SOURCES
-from vpr_jax.data.frames import frame_id_from_name, parse_frame_list
+from vpr_jax.data.frames import frame_id_from_name, is_built_in, parse_frame_list
 from vpr_jax.data.images import (
     IMAGE_EXTENSIONS,
     check_pixels,
@@ -322,19 +322,32 @@ def _align(
     frame_range: Sequence[int] | None = None,
 ) -> np.ndarray:
     """The sorted frame ids to read: listed (if a list), common to all seasons, within
-    ``frame_range`` (first and last id kept, if given), every step-th."""
+    ``frame_range`` (first and last id kept, if given), every step-th. Only the listed
+    frames inside ``frame_range`` need to be in the data."""
     available = {s: np.unique(np.asarray(ids, dtype=np.int64)) for s, ids in available.items()}
     if frame_list is not None:
         wanted = parse_frame_list(frame_list)
+        if frame_range is not None:
+            wanted = _within(
+                wanted,
+                frame_range,
+                f"the frames listed in {frame_list}",
+                "choose a range inside them, or set data.frame_list=null to read every frame",
+            )
         missing = {s: np.setdiff1d(wanted, ids, assume_unique=True) for s, ids in available.items()}
         if any(m.size for m in missing.values()):
             absent = reduce(np.union1d, missing.values())
             first = ", ".join(str(int(i)) for i in absent[:5])
             per_season = ", ".join(f"{s} {m.size:,}" for s, m in missing.items() if m.size)
+            fix = (
+                "point data.root at the whole 64x32 release, set data.frame_range to the "
+                "frames it holds, or set data.frame_list=null to read every frame"
+                if is_built_in(frame_list)
+                else "remove them from the list or point data.root at data that holds them"
+            )
             raise UserError(
                 f"frame list {frame_list} names {absent.size:,} frames absent from the data "
-                f"({per_season}; first: {first}): remove them from the list or point "
-                f"data.root at data that holds them"
+                f"({per_season}; first: {first}): {fix}"
             )
         available = {s: wanted for s in available}
     common = reduce(np.intersect1d, available.values())
@@ -352,15 +365,21 @@ def _align(
             f"frames dropped per season: {dropped}"
         )
     if frame_range is not None:
-        first, last = (int(v) for v in frame_range)
-        kept = common[(common >= first) & (common <= last)]
-        if kept.size == 0:
-            raise UserError(
-                f"data.frame_range=[{first},{last}] keeps none of the frames "
-                f"{common[0]}..{common[-1]}: choose a range inside them"
-            )
-        common = kept
+        common = _within(common, frame_range, "the frames")
     return common[::frame_step]
+
+
+def _within(
+    ids: np.ndarray, frame_range: Sequence[int], what: str, fix: str = "choose a range inside them"
+) -> np.ndarray:
+    """The sorted ``ids`` inside ``frame_range`` (inclusive); none is a UserError."""
+    first, last = (int(v) for v in frame_range)
+    kept = ids[(ids >= first) & (ids <= last)]
+    if kept.size == 0:
+        raise UserError(
+            f"data.frame_range=[{first},{last}] keeps none of {what} {ids[0]}..{ids[-1]}: {fix}"
+        )
+    return kept
 
 
 def _summary(source: str, ids: np.ndarray, seasons: Sequence[str], root: Path) -> str:

@@ -8,8 +8,9 @@ float32), one row per image, in either order:
   reads them (sorted file names for ``vpr_bench`` and ``positions``; the frames kept, in
   frame order, for ``nordland_star``);
 - one row per image file of the side's folder in sorted file-name order (Python's
-  ``sorted``), whether or not the suite keeps the image: for ``nordland_star`` with a
-  frame range or dropped frames, the suite picks the rows of the frames it uses.
+  ``sorted``), whether or not the suite keeps the image: for ``nordland_star``, whose
+  frame list (the clean list by default), range or dropped frames leave files out, the
+  suite picks the rows of the frames it uses.
 
 For ``vpr_bench`` and ``positions`` the two are the same. Files are loaded memory-mapped,
 never unpickled; a file that cannot serve is one line naming it and the fix.
