@@ -15,6 +15,7 @@ import math
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from jax.sharding import Mesh
@@ -151,26 +152,50 @@ def block_length(cfg: SweepConfig, ds: int) -> int:
     return max(cfg.bootstrap.block_length, ds)
 
 
+class ValidationScores(NamedTuple):
+    """How a cell does on the validation places: recall@1 selects, margin breaks its ties."""
+
+    recall_at_1: float
+    auc_pr: float
+    margin: float  # metrics.match_margin
+
+
 def _validation_scores(cfg: SweepConfig, pair: PairData, val_top: TopK | None):
-    """(recall@1, AUC-PR) of the validation queries' matches; NaN without them."""
+    """The validation queries' scores from their matches; NaN without them."""
     if val_top is None:
-        return math.nan, math.nan
+        return ValidationScores(math.nan, math.nan, math.nan)
     val = evaluate_matches(*val_top, pair.val_truth, pr_convention=cfg.pr_convention)
-    return val.recall_at_1, val.auc_pr
+    return ValidationScores(val.recall_at_1, val.auc_pr, val.margin)
 
 
-def validation_recalls(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> Callable:
-    """The pair's ``MethodContext.validate``: ``(validation database, validation query
-    descriptors, suffix starts) -> recall@1 per start``, matched and scored as every
-    cell's validation places are (``match``, ``_validation_scores``)."""
+def validation_scores(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> Callable:
+    """The pair's validation scorer: ``(validation database, validation query descriptors,
+    suffix starts) -> (recall@1, margin) per start``, matched and scored as every cell's
+    validation places are (``match``, ``_validation_scores``)."""
 
-    def recalls(val_db, val_query, starts: tuple[int, ...]) -> list[float]:
-        scores, idx = top_k_matches(
+    def scores(val_db, val_query, starts: tuple[int, ...]) -> list[tuple[float, float]]:
+        top_scores, idx = top_k_matches(
             val_query, val_db, TOP_K, starts=starts, block_size=cfg.matching.block_size, mesh=mesh
         )
-        return [_validation_scores(cfg, pair, top)[0] for top in zip(scores, idx, strict=True)]
+        return [
+            _validation_scores(cfg, pair, top)[::2] for top in zip(top_scores, idx, strict=True)
+        ]
 
-    return recalls
+    return scores
+
+
+def _what_was_measured(pair: PairData) -> dict:
+    """A row's columns that describe its pair: seasons, sizes, ground truth, protocol."""
+    return {
+        "season_pair": pair.name,
+        "db_season": pair.db_season,
+        "query_season": pair.query_season,
+        "n_train": len(pair.train),
+        "n_test": len(pair.query),
+        "tolerance": pair.truth.tolerance if isinstance(pair.truth, Tolerance) else -1,
+        "ground_truth": pair.truth.describe(),
+        "protocol": pair.protocol,
+    }
 
 
 def save_cell(
@@ -191,7 +216,7 @@ def save_cell(
     name = run_name(pair.name, part.run, ds)
     shutil.rmtree(logdir / name, ignore_errors=True)  # left by a crash before its row
     ev = evaluate_matches(*top, pair.truth, pr_convention=cfg.pr_convention)
-    val_recall_at_1, val_auc_pr = _validation_scores(cfg, pair, val_top)
+    val = _validation_scores(cfg, pair, val_top)
     ci = cell_intervals(
         ev.best_scores,
         ev.best_correct,
@@ -203,25 +228,20 @@ def save_cell(
     )
     _write_run(logdir, name, cfg, pair, desc, cell, ds, top, ev)
     row = ResultRow(
-        season_pair=pair.name,
-        db_season=pair.db_season,
-        query_season=pair.query_season,
+        **_what_was_measured(pair),
         method=desc.method,
         objective=desc.objective,
         setting=part.setting,
         removed_pcs=part.removed_pcs,
         ds=ds,
-        n_train=len(pair.train),
-        n_test=len(pair.query),
-        tolerance=pair.truth.tolerance if isinstance(pair.truth, Tolerance) else -1,
-        ground_truth=pair.truth.describe(),
         **ev.scalars(),
         recall_at_1_ci_low=ci.recall_at_1.low,
         recall_at_1_ci_high=ci.recall_at_1.high,
         auc_pr_ci_low=ci.auc_pr.low,
         auc_pr_ci_high=ci.auc_pr.high,
-        val_recall_at_1=val_recall_at_1,
-        val_auc_pr=val_auc_pr,
+        val_recall_at_1=val.recall_at_1,
+        val_auc_pr=val.auc_pr,
+        val_margin=val.margin,
         selected=0,
         fit_seconds=desc.fit_seconds,
         encode_ms_per_image=desc.encode_ms_per_image,

@@ -194,6 +194,8 @@ def _facts(plan: Plan, top_k, pair: PairData, row: ResultRow, folder, recall: fl
         "sequence length": f"ds={row.ds}" + (" (sequence scores)" if row.ds > 1 else ""),
         "queries": f"{len(pair.query):,} (queries.txt), database {len(pair.db):,} (database.txt)",
         "ground truth": pair.truth.describe(),
+        "protocol": f"{row.protocol} (results.csv: the fingerprint of the images, ground truth, "
+        "direction and validation places these numbers were measured on; docs/metrics.md)",
         "validation recall@1": f"{row.val_recall_at_1:.4f} (results.csv)",
         "test recall@1": f"{row.recall_at_1:.4f} (results.csv); {recall:.4f} from pairs.txt",
         "descriptors": f"database.npy, queries.npy: float32, {shape[1]} features, as the "

@@ -56,7 +56,7 @@ class PairRun(NamedTuple):
 
     plan: Plan
     data: PairData
-    validate: Callable  # (validation db, validation queries, starts) -> recall@1 per start
+    validate: Callable  # (val db, val queries, starts) -> (recall@1, margin) per start
     fitted_dir: Path  # the pair's folder of fitted states
     out: Path  # where this process writes TensorBoard runs
     log: Log
@@ -65,15 +65,12 @@ class PairRun(NamedTuple):
 
 
 def _pca_fit(fit: Fit, run: PairRun) -> PCAFit | None:
-    """The pair's shared PCA fit as ``fit`` gets it: its leading components, as many as
-    its method declares (``pca_components``; every one when it declares none), or None
-    when it needs none. The fit is made on first use, ``Plan.pca_components`` of them
-    whichever methods use it, so each user gets what it would get alone."""
+    """The pair's shared PCA fit, or None for a fit whose method declares it needs no
+    component (``pca_components``). The fit is made on first use, ``Plan.pca_components``
+    components whichever methods use it, so each user gets what it would get alone."""
     method = fit.method.method
-    need = None
     if method.pca_components is not None:
-        need = method.pca_components(fit.settings, run.plan.training_sets[fit.method.name])
-        if need <= 0:
+        if method.pca_components(fit.settings, run.plan.training_sets[fit.method.name]) <= 0:
             return None
     declared, settings = run.plan.shared_fit
     if "pca_fit" not in run.shared:
@@ -84,8 +81,7 @@ def _pca_fit(fit: Fit, run: PairRun) -> PCAFit | None:
             run.data.train,
         )
         run.shared["pca_fit"] = PCAFit(state, seconds, run.plan.cfg.removed_pcs)
-    whole = run.shared["pca_fit"]
-    return whole if need is None else whole._replace(state=declared.leading(whole.state, need))
+    return run.shared["pca_fit"]
 
 
 def resources(fit: Fit, run: PairRun) -> dict[str, Any]:
@@ -97,7 +93,7 @@ def resources(fit: Fit, run: PairRun) -> dict[str, Any]:
     if "validation" in uses:
         out["validation"] = Validation(
             images=data.val,
-            recall_at_1=lambda encode, starts=(0,): run.validate(
+            scores=lambda encode, starts=(0,): run.validate(
                 *encode_validation(encode, data), tuple(starts)
             ),
         )

@@ -32,6 +32,7 @@ from vpr_jax.outputs.plots import (
 from vpr_jax.outputs.results import (
     Choice,
     ResultRow,
+    baseline_method,
     baseline_of,
     best_objectives,
     best_rows,
@@ -39,6 +40,7 @@ from vpr_jax.outputs.results import (
     choices,
     read_results,
     selected_rows,
+    selection_reasons,
     sweeps_removed_pcs,
 )
 from vpr_jax.outputs.tb import CompareSeries, SummaryCell, write_method_run, write_pair_summary
@@ -55,7 +57,8 @@ def write_report(logdir: Path, cfg: SweepConfig) -> None:
         return
     curve = curve_reader(logdir)
     atomic_write_text(
-        logdir / "results.md", markdown_table(rows, differences_to_pca(rows, curve, cfg))
+        logdir / "results.md",
+        markdown_table(rows, *differences_to_baseline(rows, curve, cfg)),
     )
     figures = logdir / "figures"
     figures.mkdir(exist_ok=True)
@@ -100,7 +103,7 @@ def describe_encoders(root: Path, rows: list[ResultRow]) -> list[dict]:
             if not mine:
                 continue
             cell, chosen = max(
-                mine, key=lambda t: (t[1].selected, t[1].val_recall_at_1, t[1].val_auc_pr)
+                mine, key=lambda t: (t[1].selected, t[1].val_recall_at_1, t[1].val_margin)
             )
             description = describe_encoder(
                 fit_file.parent,
@@ -249,17 +252,19 @@ def _mean(rows: list[ResultRow], metric: str) -> float:
     return float(np.mean([getattr(r, metric) for r in rows]))
 
 
-def differences_to_pca(
+def differences_to_baseline(
     rows: list[ResultRow], curve: Curves, cfg: SweepConfig
-) -> dict[str, Difference]:
-    """Per selected row (by run), recall@1 minus its pair's selected PCA row's, paired on
-    the same queries (``vpr_jax.evaluation.bootstrap``); rows whose queries differ from PCA's in
-    number (no pairing possible) are left out."""
+) -> tuple[dict[str, Difference], str | None]:
+    """Per selected row (by run), recall@1 minus its pair's selected baseline row's (PCA's,
+    or the first outside set's without PCA: ``baseline_method``), paired on the same queries
+    (``vpr_jax.evaluation.bootstrap``); rows whose queries differ from the baseline's in
+    number (no pairing possible) are left out. Returns them and the baseline's name."""
     selected = selected_rows(rows)
+    baseline = baseline_method(rows, tuple(cfg.precomputed))
     out = {}
     for row in selected:
-        base = baseline_of(row, selected)
-        if row.method == BASELINE or base is None:
+        base = None if baseline is None else baseline_of(row, selected, baseline)
+        if row.method == baseline or base is None:
             continue
         mine, theirs = curve(row.run)["best_correct"], curve(base.run)["best_correct"]
         if mine.shape != theirs.shape:
@@ -271,7 +276,7 @@ def differences_to_pca(
             resamples=cfg.bootstrap.resamples,
             seed=cfg.seed,
         )
-    return out
+    return out, baseline
 
 
 # ---------------------------------------------------------------------------- results.md
@@ -301,23 +306,32 @@ HEADLINE_COLUMNS = (
     "ds",
     "seed",
     "val_recall_at_1",
+    "chosen by",
     "recall_at_1",
     "95% CI",
     "auc_pr",
     "95% CI",
-    "recall@1 - PCA [95% CI]",
-    "vs PCA",
+    "recall@1 - {base} [95% CI]",
+    "vs {base}",
 )
 OPTIONAL = ("setting", "ds", "seed")  # columns shown when a sweep has more than one value
 SELECTION_NOTE = (
     "The setting (removed-PC count, and the method's swept settings) with the best recall@1 "
     "on the validation places (the end of each season's training stretch; for a benchmark "
     "trained on its database, its last queries, held out of the test), scored on the test "
-    "places; with several seeds, the best mean over them, every seed's row shown. "
-    "Intervals: 95%, block bootstrap over the queries. vs PCA: a paired bootstrap of the "
-    "difference to the pair's selected PCA row on the same queries; better / worse when "
-    "its interval excludes 0."
+    "places; with several seeds, the best mean over them, every seed's row shown. Settings "
+    "tied on it are told apart by their validation margin (val_margin in results.csv: the "
+    "best correct match's cosine minus the best wrong one's, averaged over the queries; "
+    "docs/metrics.md), then the simpler setting (fewer removed PCs, the first value) wins; "
+    "'chosen by' says which decided. Intervals: 95%, block bootstrap over the queries. "
 )
+VERSUS_NOTE = {
+    True: (
+        "vs {base}: a paired bootstrap of the difference to the pair's selected {base} row on "
+        "the same queries; better / worse when its interval excludes 0."
+    ),
+    False: "No PCA or outside set in this sweep: no paired differences.",
+}
 
 
 def _shown(rows: list[ResultRow]) -> set[str]:
@@ -332,20 +346,30 @@ def _shown(rows: list[ResultRow]) -> set[str]:
     return shown
 
 
-def markdown_table(rows: list[ResultRow], differences: dict[str, Difference] | None = None) -> str:
+def markdown_table(
+    rows: list[ResultRow],
+    differences: dict[str, Difference] | None = None,
+    baseline: str | None = BASELINE,
+) -> str:
     """results.md: the validation-selected setting per method (recall@1 and AUC-PR with
-    their 95% intervals, and the paired difference to PCA that ``differences`` holds per
-    run), the spread over seeds where there are several, then the best setting chosen on
-    the test queries (optimistic), then every cell. The setting, ds and seed columns appear
-    once a sweep has more than one value of them."""
+    their 95% intervals, what decided the choice, and the paired difference to the
+    ``baseline`` method (PCA, or the first outside set) that ``differences`` holds per run),
+    the spread over seeds where there are several, then the best setting chosen on the test
+    queries (optimistic), then every cell. The setting, ds and seed columns appear once a
+    sweep has more than one value of them."""
+    base = _label(baseline)
     shown = _shown(rows)
     preferred = best_objectives(rows)  # runs marked "best"
     first = rows[0] if rows else None
     seeds = ", ".join(str(s) for s in sorted({r.seed for r in rows}))
+    protocols = sorted({(r.season_pair, r.protocol) for r in rows})
     intro = (
         f"{first.n_test} queries per pair, a match is correct within {first.ground_truth}, "
         f"{'seeds' if 'seed' in shown else 'seed'} {seeds}. recall_at_1 is the fraction of "
-        "correct matches (= precision at 100% recall)."
+        "correct matches (= precision at 100% recall). Protocol fingerprints (the images, "
+        "ground truth, direction and validation places measured on; docs/metrics.md): "
+        + ", ".join(f"{pair} {fp}" for pair, fp in protocols)
+        + "."
         if first
         else "No cells yet."
     )
@@ -356,12 +380,12 @@ def markdown_table(rows: list[ResultRow], differences: dict[str, Difference] | N
         "",
         "## Each method at the setting chosen on the validation places",
         "",
-        SELECTION_NOTE,
+        SELECTION_NOTE + VERSUS_NOTE[baseline is not None].format(base=base),
         "",
-        *_headline(selected_rows(rows), differences or {}, shown, preferred),
+        *_headline(rows, differences or {}, shown, preferred, base),
         *_best_objective_note(rows, preferred),
         "",
-        *_seed_spread(rows, differences or {}),
+        *_seed_spread(rows, differences or {}, base),
         "## Best setting per method, chosen on the test queries (optimistic)",
         "",
         *_cell_table(best_rows(rows), shown),
@@ -404,10 +428,15 @@ def _ci(low: float, high: float) -> str:
     return "" if math.isnan(low) else f"[{low:.3f}, {high:.3f}]"
 
 
-def _versus_pca(row: ResultRow, differences: dict[str, Difference]) -> tuple[str, str]:
-    """(the difference to PCA with its interval, its label) for the headline table."""
+def _label(baseline: str | None) -> str:
+    """How results.md names the baseline: PCA, an outside set by its name."""
+    return "PCA" if baseline in (BASELINE, None) else str(baseline)
+
+
+def _versus(row: ResultRow, differences: dict[str, Difference], base: str) -> tuple[str, str]:
+    """(the difference to the baseline with its interval, its label) for the headline."""
     diff = differences.get(row.run)
-    if row.method == BASELINE:
+    if _label(row.method) == base:
         return "", "baseline"
     if diff is None:
         return "", "n/a"
@@ -419,10 +448,12 @@ def _headline(
     differences: dict[str, Difference],
     shown: set[str],
     preferred: set[str],
+    base: str,
 ) -> list[str]:
     body = []
-    for r in _in_order(rows):
-        versus, label = _versus_pca(r, differences)
+    reasons = selection_reasons(rows)
+    for r in _in_order(selected_rows(rows)):
+        versus, label = _versus(r, differences, base)
         optional = {"setting": r.setting, "ds": str(r.ds), "seed": str(r.seed)}
         body.append(
             [
@@ -433,6 +464,7 @@ def _headline(
                 str(r.removed_pcs),
                 *(optional[c] for c in ("ds", "seed") if c in shown),
                 f"{r.val_recall_at_1:.3f}",
+                reasons[r.run],
                 f"{r.recall_at_1:.3f}",
                 _ci(r.recall_at_1_ci_low, r.recall_at_1_ci_high),
                 f"{r.auc_pr:.3f}",
@@ -441,7 +473,8 @@ def _headline(
                 label,
             ]
         )
-    return _markdown(_columns(HEADLINE_COLUMNS, shown), body)
+    head = tuple(c.format(base=base) for c in _columns(HEADLINE_COLUMNS, shown))
+    return _markdown(head, body)
 
 
 def _spread(values: list[float]) -> str:
@@ -451,9 +484,9 @@ def _spread(values: list[float]) -> str:
     return f"sd {float(np.std(values, ddof=1)):.3f}"
 
 
-def _seed_spread(rows: list[ResultRow], differences: dict[str, Difference]) -> list[str]:
+def _seed_spread(rows: list[ResultRow], differences: dict[str, Difference], base: str) -> list[str]:
     """results.md's seed section: per selected setting fitted with several seeds, the mean
-    recall@1 over them, its spread, and each seed's paired difference to PCA."""
+    recall@1 over them, its spread, and each seed's paired difference to the baseline."""
     groups: dict[tuple, list[ResultRow]] = {}
     for r in selected_rows(rows):
         key = (r.season_pair, r.method, r.objective, r.setting, r.removed_pcs, r.ds)
@@ -489,7 +522,7 @@ def _seed_spread(rows: list[ResultRow], differences: dict[str, Difference]) -> l
         "seeds",
         "mean recall_at_1",
         "spread",
-        "recall@1 - PCA per seed",
+        f"recall@1 - {base} per seed",
     )
     return [
         "## Seeds",
@@ -497,7 +530,7 @@ def _seed_spread(rows: list[ResultRow], differences: dict[str, Difference]) -> l
         "Each selected setting fitted with several seeds (``seeds``; the data, split and "
         "route follow ``seed`` and never change with them): the mean recall@1 over the "
         "seeds, its spread (min-max for two seeds, the standard deviation for three or "
-        "more) and each seed's paired difference to PCA. A difference between methods "
+        f"more) and each seed's paired difference to {base}. A difference between methods "
         "smaller than this spread is seed noise.",
         "",
         *_markdown(head, body),

@@ -17,7 +17,7 @@ from pathlib import Path
 import jax
 from jax.sharding import Mesh
 
-from experiments.cells import INCOMPLETE, log_cell, match, save_cell, validation_recalls
+from experiments.cells import INCOMPLETE, log_cell, match, save_cell, validation_scores
 from experiments.fitting import PairRun, describe_fit
 from experiments.plan import Plan
 from experiments.report import COMPARE, SUMMARY, write_report
@@ -26,6 +26,7 @@ from vpr_jax.config import MeshConfig
 from vpr_jax.data.pair import PairData, benchmark_pair, pair_data
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
+from vpr_jax.evaluation.protocol import describe_protocol, fingerprint, protocol_record
 from vpr_jax.files import atomic_write_text
 from vpr_jax.host_arrays import release_free_memory
 from vpr_jax.methods.descriptors import Descriptors
@@ -156,8 +157,11 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
     log(
         f"sweep: {plan.describe()}, pairs {[f'{a}-{b}' for a, b in plan.pairs]}, "
-        f"methods {list(cfg.methods)}, logdir {logdir}"
+        f"methods {list(cfg.methods)}"
+        + (f", outside descriptors {list(cfg.precomputed)}" if cfg.precomputed else "")
+        + f", logdir {logdir}"
     )
+    log_protocols(plan, log)
     cells, todo = _cells_to_do(plan, log)
     write_experiment_config(
         out,
@@ -214,7 +218,7 @@ def _run_pair(
             run = PairRun(
                 plan=plan,
                 data=data,
-                validate=validation_recalls(data, cfg, mesh),
+                validate=validation_scores(data, cfg, mesh),
                 fitted_dir=fitted_root(cfg, plan.logdir) / pair,
                 out=out,
                 log=log,
@@ -240,11 +244,23 @@ def _run_pair(
 
 
 def load_pair(plan: Plan, db: str, query: str) -> PairData:
-    """The images and ground truth of one pair: of the route, or the benchmark's."""
+    """The images and ground truth of one pair, of the route or the benchmark, with the
+    fingerprint of its protocol."""
     cfg = plan.cfg
     if plan.benchmark is not None:
-        return benchmark_pair(plan.benchmark, plan.route, plan.split, cfg)
-    return pair_data(plan.route, plan.split, db, query, cfg.split.database, cfg.tolerance)
+        data = benchmark_pair(plan.benchmark, plan.route, plan.split, cfg)
+    else:
+        data = pair_data(plan.route, plan.split, db, query, cfg.split.database, cfg.tolerance)
+    return data._replace(protocol=fingerprint(protocol_record(data, plan.benchmark is not None)))
+
+
+def log_protocols(plan: Plan, log: RunLog) -> None:
+    """One line per pair: its protocol's fingerprint and what it stands for."""
+    for db, query in plan.pairs:
+        data = load_pair(plan, db, query)
+        what = describe_protocol(data, plan.benchmark is not None)
+        log(f"protocol {data.name} {data.protocol}: {what}")
+        del data
 
 
 def _save_descriptors(

@@ -231,6 +231,7 @@ def test_global_feats_h5_holds_the_npy_rows_normalised_in_hlocs_layout(bench):
         readme = (folder / "README.txt").read_text()
         assert "as the encoder produced them (not normalised" in readme
         assert "L2-normalised" in readme and "hloc.pairs_from_retrieval" in readme
+        assert re.search(rf"^protocol +{chosen[name]['protocol']} \(results\.csv", readme, re.M)
     assert not (bench / "export" / "ref-query" / "pca_ds04" / "global-feats.h5").exists()
 
 

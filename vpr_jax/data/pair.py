@@ -51,6 +51,7 @@ class PairData(NamedTuple):
     val_truth: GroundTruth
     aligned_training: bool = True  # train (and val) are two seasons' aligned places
     names: Names | None = None  # the images' names: export and outside descriptors use them
+    protocol: str = ""  # the fingerprint of what it is scored on (evaluation.protocol)
 
     @property
     def val(self) -> np.ndarray:

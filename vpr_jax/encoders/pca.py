@@ -280,11 +280,6 @@ def fit_pca(
     return _from_scatter(mean, scatter, n, n_components)
 
 
-def leading(state: PCAState, n: int) -> PCAState:
-    """The fit of ``state``'s first ``n`` components (its mean unchanged)."""
-    return PCAState(state.mean, state.components[:n], state.explained_variance[:n])
-
-
 @jax.jit
 def project(state: PCAState, images: Float[Array, "n ..."]) -> Float[Array, "n c"]:
     """Coefficients of every component, centred with the TRAINING mean."""

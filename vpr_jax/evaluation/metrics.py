@@ -9,6 +9,7 @@ references it follows.
 
 from __future__ import annotations
 
+import math
 from typing import Literal, NamedTuple
 
 import numpy as np
@@ -52,7 +53,8 @@ class Evaluation(NamedTuple):
     precision 1, threshold +inf), index i > 0 accepts queries with best score >= threshold i.
     ``best_scores``, ``best_correct``, ``has_match``: per query (in input order).
     ``recall_at_k``: recall@K for every K asked for (always including 1, 5 and 10);
-    ``recall_at_5`` and ``recall_at_10`` read it.
+    ``recall_at_5`` and ``recall_at_10`` read it. ``margin``: ``match_margin``, what breaks
+    ties of the validation places' recall@1.
     """
 
     recall_at_1: float
@@ -68,6 +70,7 @@ class Evaluation(NamedTuple):
     recall_at_k: dict[int, float]
     pr_convention: str
     extended_precision: float = float("nan")
+    margin: float = float("nan")
 
     @property
     def recall_at_5(self) -> float:
@@ -351,6 +354,29 @@ def _recall_at_k(correct, has_match, ks: tuple[int, ...], n_db: int) -> dict[int
     }
 
 
+def match_margin(
+    top_scores: Float[np.ndarray, "nq k"],
+    correct: Bool[np.ndarray, "nq k"],
+    has_match: Bool[np.ndarray, " nq"],
+) -> float:
+    """Mean over the queries with a correct match of the best correct score minus the best
+    wrong one among its top-K matches (scores sorted best first): positive where the first
+    match is correct, by how much; negative where a wrong one wins, by how much. When no
+    correct (or no wrong) match is among the K, the K-th score stands in for it: a bound.
+    NaN without queries that have a match. It does not saturate where recall@1 does (every
+    query right), so it tells apart settings recall@1 ties (docs/metrics.md)."""
+    if not has_match.any():
+        return math.nan
+    last = top_scores[:, -1]
+    best_correct = np.where(
+        correct.any(axis=1), np.max(np.where(correct, top_scores, -np.inf), axis=1), last
+    )
+    best_wrong = np.where(
+        (~correct).any(axis=1), np.max(np.where(correct, -np.inf, top_scores), axis=1), last
+    )
+    return float(np.mean((best_correct - best_wrong)[has_match]))
+
+
 def evaluate_matches(
     top_scores: Float[np.ndarray, "nq k"],
     top_indices: Int[np.ndarray, "nq k"],
@@ -397,6 +423,7 @@ def evaluate_matches(
         recall_at_k=_recall_at_k(correct, match, all_ks, n_db),
         pr_convention=pr_convention,
         extended_precision=extended_precision(precision, recall),
+        margin=match_margin(scores, correct, match),
     )
 
 

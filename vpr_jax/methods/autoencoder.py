@@ -101,15 +101,16 @@ class ResidualInput(NamedTuple):
 
 
 def residual_input(pca_fit: PCAFit, validation: Validation) -> ResidualInput:
-    """The count PCA change removal chooses on the validation places (the best validation
-    recall@1 among the sweep's removed counts, the fewest on a tie)."""
+    """The count PCA change removal chooses on the validation places, by the sweep's rule:
+    the best validation recall@1 among the sweep's removed counts, then margin, then the
+    fewest."""
     state = pca_fit.state
     counts = sorted(k for k in pca_fit.removed_pcs if k <= state.components.shape[0])
-    recalls = validation.recall_at_1(lambda x: pca.suffix_descriptors(state, x), tuple(counts))
-    best = int(np.argmax(recalls))  # the first of equals: the fewest components
+    scores = validation.scores(lambda x: pca.suffix_descriptors(state, x), tuple(counts))
+    best = max(range(len(counts)), key=lambda i: scores[i])  # the first of equals
     k = counts[best]
     fixed = {"removal_mean": state.mean, "removal_basis": state.components[:k]} if k else None
-    return ResidualInput(k, float(recalls[best]), fixed)
+    return ResidualInput(k, float(scores[best][0]), fixed)
 
 
 def augment_variants(settings: TrainConfig) -> tuple[tuple[str, TrainConfig], ...]:

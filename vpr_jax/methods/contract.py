@@ -65,13 +65,13 @@ class TrainingSet(NamedTuple):
 class SharedFit(NamedTuple):
     """The fit a pair shares with every method that ``uses`` ``pca_fit``. It holds a count
     of components that depends on the data and its own settings only, never on which
-    methods use it, and each user is handed its ``leading`` components: a method's numbers
-    do not depend on what else is in ``methods``."""
+    methods use it (each takes the leading ones it needs): a method's numbers do not depend
+    on what else is in ``methods``, and its shapes (so its compiled code) not on its own
+    settings."""
 
     components: Callable[[Any, int, int], int]  # (settings, n_images, n_pixels) -> the
     # components the fit holds
     fit: Callable[..., Any]  # (train, n_components, settings, mesh, seed) -> its state
-    leading: Callable[[Any, int], Any]  # (state, n) -> the state of its first n components
     fix: str  # how a user gets more components than it holds (an error's advice)
 
 
@@ -118,8 +118,13 @@ class Validation(NamedTuple):
 
     images: np.ndarray  # both seasons' validation places, database season first (aligned
     # pairs), or a benchmark's held-out queries
-    recall_at_1: Callable[..., list[float]]  # (encode, starts=(0,)) -> recall@1 per
-    # feature-suffix start of encode's descriptors
+    scores: Callable[..., list[tuple[float, float]]]  # (encode, starts=(0,)) ->
+    # (recall@1, margin) per feature-suffix start of encode's descriptors: the sweep's
+    # selection key (the larger tuple wins; results.py)
+
+    def recall_at_1(self, encode: Callable, starts: tuple[int, ...] = (0,)) -> list[float]:
+        """Recall@1 per feature-suffix start of ``encode``'s descriptors."""
+        return [recall for recall, _ in self.scores(encode, starts)]
 
 
 class Training(NamedTuple):

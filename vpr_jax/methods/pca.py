@@ -5,9 +5,9 @@ Its fit is the pair's shared PCA fit (``shared_fit``), which every method that `
 ``pca_fit`` receives too (ica whitens with it, lda whitens inside it, a residual-input
 auto-encoder removes its leading components). The shared fit solves every component
 exactly (``covariance`` or ``gram``), or, where that is too large (``FULL_SOLVE_LIMIT``) or
-``pca.solver=subspace`` asks, a fixed ``pca.subspace_components``; each user takes the
-leading components it needs, so no method's numbers depend on which others share the
-sweep. The descriptor of count k is the suffix
+``pca.solver=subspace`` asks, a fixed ``pca.subspace_components``; every user gets that
+whole fit and takes the leading components it needs, so no method's numbers depend on which
+others share the sweep. pca's descriptor holds the coefficients on all of them. The descriptor of count k is the suffix
 ``[k:]`` of ``pca.suffix_descriptors``, coefficients then residual (``vpr_jax.encoders.pca``),
 so one encoding and one matching pass score every count; ``pca.output=pixels`` encodes
 each count in pixel space instead, as the seed did (the same similarities, slower).
@@ -110,12 +110,12 @@ method = Method(
     suffix=lambda s: "" if s.output == "pixels" else "removed_pcs",
     uses=("pca_fit",),
     random=False,
-    pca_components=lambda s, training: max(training.removed_pcs),
+    # the components it removes; the fit itself also for k = 0 (the image less its mean)
+    pca_components=lambda s, training: max(1, *training.removed_pcs),
     report=_report,
     shared_fit=SharedFit(
         components=shared_components,
         fit=shared_fit,
-        leading=pca.leading,
         fix="pca.solver=covariance (every component), or a larger pca.subspace_components",
     ),
 )

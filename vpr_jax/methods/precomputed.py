@@ -38,5 +38,22 @@ def precomputed_descriptors(
         fit_seconds=math.nan,
         encode_ms_per_image=math.nan,
         basis=(None,),
-        warning=degenerate_warning(db, query),
+        warning=_zero_warning(sides, pair) or degenerate_warning(db, query),
+    )
+
+
+def _zero_warning(sides: dict[str, OutsideSide], pair: PairData) -> str | None:
+    """One line naming the pair's images whose outside descriptor is all zero (their
+    cosine to every image is 0: their matches are arbitrary), or None."""
+    found = []
+    for side, names in (("database", pair.names.db), ("queries", pair.names.query)):
+        zero = sorted(set(sides[side].zero) & {str(n) for n in names})
+        if zero:
+            more = f" and {len(zero) - 3:,} more" if len(zero) > 3 else ""
+            found.append(f"{len(zero):,} {side} rows ({', '.join(zero[:3])}{more})")
+    if not found:
+        return None
+    return (
+        f"all-zero descriptors: {' and '.join(found)}; cosine scores them 0 against every "
+        "image, so their matches are arbitrary: recompute those descriptors"
     )

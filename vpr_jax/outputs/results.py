@@ -3,8 +3,9 @@ cell and its group, and the validation selection that marks each group's chosen 
 
 A group (one pair, method, objective and sequence length) holds a choice per setting and
 removed count; a choice holds a row per seed (``seeds``). The choice with the best mean
-validation recall@1 over its seeds (then validation AUC-PR) is ``selected``, every one of
-its rows; ties go to the first choice in ``choice_order``.
+validation recall@1 over its seeds is ``selected``, every one of its rows; a tie goes to the
+best mean validation margin (``metrics.match_margin``: recall@1 saturates on easy places,
+the margin does not), then to the simpler choice, the first in ``choice_order``.
 """
 
 from __future__ import annotations
@@ -38,13 +39,16 @@ ResultRow = NamedTuple(
         ("n_test", int),  # queries
         ("tolerance", int),  # frames, for a tolerance ground truth; -1 for sets
         ("ground_truth", str),  # what defines a correct match: "+-2 frames", "within 25 m", ...
+        ("protocol", str),  # fingerprint of the images, ground truth, direction and split
+        # the row was measured on (vpr_jax.evaluation.protocol, docs/metrics.md)
         *((name, float) for name in SCALAR_NAMES),  # the seven metrics (evaluation.metrics)
         ("recall_at_1_ci_low", float),  # 95% block-bootstrap interval (evaluation.bootstrap)
         ("recall_at_1_ci_high", float),
         ("auc_pr_ci_low", float),
         ("auc_pr_ci_high", float),
         ("val_recall_at_1", float),  # on the validation places: what chooses the setting
-        ("val_auc_pr", float),  # breaks ties of val_recall_at_1 (it saturates on easy routes)
+        ("val_auc_pr", float),
+        ("val_margin", float),  # breaks ties of val_recall_at_1 (it saturates on easy places)
         ("selected", int),  # 1: the best setting on validation of its pair x method x objective
         # x ds (every seed's row of it)
         ("fit_seconds", float),
@@ -143,14 +147,35 @@ class Choice(NamedTuple):
         return float(np.mean([getattr(r, metric) for r in self.rows]))
 
     def val_score(self) -> tuple[float, float]:
-        """The mean validation recall@1 and AUC-PR over seeds (rows without validation
-        scores count -1: they lose)."""
+        """The mean validation recall@1 and margin over seeds: what selects (rows without
+        validation scores count -inf: they lose)."""
         scores = [_val_score(r) for r in self.rows]
         return tuple(float(np.mean(column)) for column in zip(*scores, strict=True))
 
 
 def _val_score(row: ResultRow) -> tuple[float, float]:
-    return tuple(-1.0 if math.isnan(v) else v for v in (row.val_recall_at_1, row.val_auc_pr))
+    return tuple(-math.inf if math.isnan(v) else v for v in (row.val_recall_at_1, row.val_margin))
+
+
+SELECTED_BY = ("validation recall@1", "validation margin", "order (all tied)", "one choice")
+
+
+def selection_reasons(rows: list[ResultRow]) -> dict[str, str]:
+    """Per run, what decided its group's selection (``decided_by``)."""
+    return {
+        r.run: decided_by(group) for group in choices(rows).values() for c in group for r in c.rows
+    }
+
+
+def decided_by(group: list[Choice]) -> str:
+    """What decided a group's selection (``SELECTED_BY``): its validation recall@1, the
+    margin among the settings tied on it, or their order where both tie (or are missing)."""
+    if len(group) == 1:
+        return SELECTED_BY[3]
+    scores = sorted((c.val_score() for c in group), reverse=True)
+    if scores[0][0] != scores[1][0]:
+        return SELECTED_BY[0]
+    return SELECTED_BY[1] if scores[0][1] != scores[1][1] else SELECTED_BY[2]
 
 
 def choices(rows: list[ResultRow]) -> dict[GroupKey, list[Choice]]:
@@ -165,7 +190,7 @@ def choices(rows: list[ResultRow]) -> dict[GroupKey, list[Choice]]:
 
 def mark_selected(rows: list[ResultRow]) -> list[ResultRow]:
     """``selected = 1`` on every row of each group's choice with the best mean validation
-    recall@1, then AUC-PR (the first choice on a tie); 0 on every other row."""
+    recall@1, then margin (the first choice on a tie); 0 on every other row."""
     chosen = {
         id(r) for group in choices(rows).values() for r in max(group, key=Choice.val_score).rows
     }
@@ -200,7 +225,7 @@ def selected_rows(rows: list[ResultRow]) -> list[ResultRow]:
 def best_objectives(rows: list[ResultRow]) -> set[str]:
     """The runs of the selected rows that are their method's best objective: per pair,
     method and ds with more than one objective, the selected choice with the best mean
-    validation recall@1 (then AUC-PR; the first objective on a tie)."""
+    validation recall@1 (then margin; the first objective on a tie)."""
     groups: dict[tuple, dict[str, list[ResultRow]]] = {}
     for row in selected_rows(rows):
         if row.objective:
@@ -214,13 +239,21 @@ def best_objectives(rows: list[ResultRow]) -> set[str]:
     }
 
 
-def baseline_of(row: ResultRow, selected: list[ResultRow]) -> ResultRow | None:
-    """The baseline of a selected row (``method_table.BASELINE``, the seed's PCA): its
-    pair's selected row at the same ds, of the same seed where it has several."""
+def baseline_method(rows: list[ResultRow], outside: tuple[str, ...] = ()) -> str | None:
+    """What results.md's paired differences are to: ``method_table.BASELINE`` (the seed's
+    PCA) when the sweep ran it, else the first set of outside descriptors (``outside``, in
+    the order given) that has rows, else None (no differences)."""
+    methods = {r.method for r in rows}
+    return next((m for m in (BASELINE, *outside) if m in methods), None)
+
+
+def baseline_of(row: ResultRow, selected: list[ResultRow], baseline: str) -> ResultRow | None:
+    """The baseline of a selected row: the ``baseline`` method's selected row of its pair
+    at the same ds, of the same seed where it has several."""
     mine = [
         other
         for other in selected
-        if (other.season_pair, other.method, other.ds) == (row.season_pair, BASELINE, row.ds)
+        if (other.season_pair, other.method, other.ds) == (row.season_pair, baseline, row.ds)
     ]
     same_seed = [other for other in mine if other.seed == row.seed]
     return (same_seed or mine or [None])[0]

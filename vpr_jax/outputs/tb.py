@@ -9,6 +9,7 @@ and lose every scalar.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 import traceback
@@ -124,7 +125,8 @@ def write_cell_run(
     tagged = {**{f"metrics/{k}": v for k, v in ev.scalars().items()}, **scalars}
     writer = SummaryWriter(str(run_dir))
     for tag, value in tagged.items():
-        writer.add_scalar(tag, float(value), global_step=0)
+        if math.isfinite(value):  # NaN: unknown (outside descriptors' fit time), not a value
+            writer.add_scalar(tag, float(value), global_step=0)
     _add_pr_curve(
         writer,
         "pr_curve",
