@@ -177,9 +177,8 @@ def validation_scores(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> Ca
         top_scores, idx = top_k_matches(
             val_query, val_db, TOP_K, starts=starts, block_size=cfg.matching.block_size, mesh=mesh
         )
-        return [
-            _validation_scores(cfg, pair, top)[::2] for top in zip(top_scores, idx, strict=True)
-        ]
+        scored = [_validation_scores(cfg, pair, top) for top in zip(top_scores, idx, strict=True)]
+        return [(v.recall_at_1, v.margin) for v in scored]
 
     return scores
 

@@ -7,8 +7,10 @@ auto-encoder removes its leading components). The shared fit solves every compon
 exactly (``covariance`` or ``gram``), or, where that is too large (``FULL_SOLVE_LIMIT``) or
 ``pca.solver=subspace`` asks, a fixed ``pca.subspace_components``; every user gets that
 whole fit and takes the leading components it needs, so no method's numbers depend on which
-others share the sweep. pca's descriptor holds the coefficients on all of them. The descriptor of count k is the suffix
-``[k:]`` of ``pca.suffix_descriptors``, coefficients then residual (``vpr_jax.encoders.pca``),
+others share the sweep.
+
+The descriptor of count k is the suffix ``[k:]`` of ``pca.suffix_descriptors`` (the
+coefficients on every component of the fit, then the residual; ``vpr_jax.encoders.pca``),
 so one encoding and one matching pass score every count; ``pca.output=pixels`` encodes
 each count in pixel space instead, as the seed did (the same similarities, slower).
 """
@@ -54,7 +56,8 @@ class InPixels(NamedTuple):
 
 
 # Above this many components (min(N - 1, D)), auto solves only the leading
-# pca.subspace_components: an exact solve's eigh would take minutes (4,096: about 7 s).
+# pca.subspace_components: an exact solve's eigh grows as the cube (4,096: 6.7 s measured
+# on the 2-core box, 2026-12-04; 8,192 would take about a minute).
 FULL_SOLVE_LIMIT = 4096
 
 
