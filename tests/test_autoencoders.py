@@ -117,3 +117,19 @@ def test_max_pool_2x2_equals_flax_max_pool_and_its_gradient_picks_the_maximum():
     grad = jax.grad(lambda x: ae.max_pool_2x2(x).sum())(x)
     want = jax.grad(lambda x: nnx.max_pool(x, (2, 2), strides=(2, 2)).sum())(x)
     np.testing.assert_array_equal(grad, want)  # continuous data: no ties
+
+
+def test_augment_auto_keeps_the_better_model_wherever_it_is_in_the_list():
+    """``train.augment=auto`` trains two models and keeps the better on validation; the
+    second (plain) one winning once crashed the sweep, as models holding arrays were
+    compared to find its position."""
+    from vpr_jax.encoders.train import TrainResult
+    from vpr_jax.methods.autoencoder import better_model
+
+    def model(score):
+        params = {"w": jnp.full((3, 2), score)}
+        return TrainResult(None, params, 4, 40, 0.1, score, 2, "recall", False, False, 0, 1.0)
+
+    assert better_model([model(0.5), model(0.7)]) == 1
+    assert better_model([model(0.7), model(0.5)]) == 0
+    assert better_model([model(0.6), model(0.6)]) == 0  # a tie: the first (augmented)

@@ -166,10 +166,11 @@ def fit_model(
         _train(fit, suffix, spec, variant, data, key, removal, validation, training, mesh)
         for suffix, variant in augment_variants(settings)
     ]
-    best = max(trained, key=lambda r: r.best_score)  # the first on a tie
+    chosen = better_model(trained)
+    best = trained[chosen]
     if len(trained) > 1:
         variants = augment_variants(settings)
-        kept = variants[trained.index(best)][0]
+        kept = variants[chosen][0]
         scores = ", ".join(
             f"{suffix.strip('_')} {r.best_score:.3f}"
             for (suffix, _), r in zip(variants, trained, strict=True)
@@ -185,6 +186,12 @@ def fit_model(
         spec=spec,
         image_shape=tuple(int(s) for s in train.shape[1:3]),
     )
+
+
+def better_model(trained: list[TrainResult]) -> int:
+    """Which of the models ``train.augment=auto`` trained is kept: the best validation
+    score, the first on a tie. By position: models hold arrays, so they do not compare."""
+    return max(range(len(trained)), key=lambda i: trained[i].best_score)
 
 
 def _train(
