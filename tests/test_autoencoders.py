@@ -128,7 +128,20 @@ def test_augment_auto_keeps_the_better_model_wherever_it_is_in_the_list():
 
     def model(score):
         params = {"w": jnp.full((3, 2), score)}
-        return TrainResult(None, params, 4, 40, 0.1, score, 2, "recall", False, False, 0, 1.0)
+        return TrainResult(
+            graphdef=None,
+            params=params,
+            epochs=4,
+            steps=40,
+            best_val_loss=0.1,
+            best_score=score,
+            best_epoch=2,
+            selected_by="recall",
+            stopped_early=False,
+            restored=False,
+            resumed_epoch=0,
+            train_seconds=1.0,
+        )
 
     assert better_model([model(0.5), model(0.7)]) == 1
     assert better_model([model(0.7), model(0.5)]) == 0
