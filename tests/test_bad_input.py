@@ -173,6 +173,10 @@ CONFIG_CASES = {
         ["diff_pca", "250 aligned training places", "up to 250"],
     ),
     "LDA shrinkage outside [0, 1]": (["lda.shrinkage=1.5"], ["lda.shrinkage=1.5", "[0, 1]"]),
+    "a method needing more components than a subspace PCA fit holds": (
+        [*SMALL, "methods=[pca,lda]", "pca.solver=subspace", "pca.subspace_components=100"],
+        ["method lda needs 200 components", "holds 100", "pca.subspace_components"],
+    ),
     "an unknown setting of a method": (["ica.foo=1"], ["ica.foo is unknown", "n_components"]),
     "a bad value among a swept setting's": (
         ["lda.shrinkage=[0.1,2]"],
