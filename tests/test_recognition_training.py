@@ -3,6 +3,7 @@ the contrastive objective and the residual input, each against an oracle (numpy,
 scikit-learn), and interrupted training that resumes to the same selection."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from flax import nnx
@@ -57,6 +58,32 @@ def test_contrastive_loss_is_infonce_both_ways():
     np.testing.assert_allclose(got, (cross_entropy(sims) + cross_entropy(sims.T)) / 2, rtol=1e-5)
     # A batch whose places match their other season exactly scores far lower.
     assert np.mean(objectives.contrastive_loss(a, a, 0.2)) < np.mean(got)
+
+
+@pytest.mark.parametrize("radius", [1, 3])
+def test_the_route_mask_leaves_neighbouring_places_out_of_the_wrong_ones(radius):
+    """With positions along the route, a place's neighbours within ``radius`` (correct
+    matches within the tolerance) are not its negatives: numpy's InfoNCE over the columns
+    that are left, both ways."""
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(size=(8, 5)), rng.normal(size=(8, 5))
+    places = np.array([0, 1, 2, 10, 11, 30, 33, 50])
+    got = np.asarray(objectives.contrastive_loss(a, b, 0.2, jnp.asarray(places), radius))
+    sims = numpy_cosine(a, b) / 0.2
+    near = np.abs(places[:, None] - places[None, :]) <= radius
+    kept = ~near | np.eye(len(places), dtype=bool)
+
+    def cross_entropy(logits, keep):  # row i's right column is i; dropped columns absent
+        rows = enumerate(zip(logits, keep, strict=True))
+        return np.array([np.log(np.exp(row[k]).sum()) - row[i] for i, (row, k) in rows])
+
+    want = (cross_entropy(sims, kept) + cross_entropy(sims.T, kept.T)) / 2
+    np.testing.assert_allclose(got, want, rtol=1e-5)
+    unmasked = np.asarray(objectives.contrastive_loss(a, b, 0.2))
+    assert np.all(got <= unmasked + 1e-6) and np.any(got < unmasked - 1e-3)
+    # Without positions, or at radius 0, every other place stays a wrong one.
+    zero = objectives.contrastive_loss(a, b, 0.2, jnp.asarray(places), 0)
+    np.testing.assert_array_equal(np.asarray(zero), unmasked)
 
 
 @pytest.mark.parametrize(

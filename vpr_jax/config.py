@@ -207,6 +207,9 @@ class TrainConfig:
     # train both and keep the better on the validation places' recall@1.
     augment: Any = True
     temperature: float = 0.1  # the contrastive objective's: cosine similarities / this
+    # The contrastive objective's: training places within this many positions of a batch's
+    # place along the route are not its wrong places (they look alike; 0: every other is).
+    contrastive_radius: int = 0
     checkpoint_dir: str = "checkpoints"  # models go to <this>/<logdir name>/<pair>/<method>/
     # An epoch's checkpoint is written once this many seconds passed since the last one (and
     # always for the last epoch): a killed run loses at most about this much training, and
@@ -227,6 +230,10 @@ class TrainConfig:
             f"train.augment={self.augment} is not true, false or auto",
         )
         _check(self.temperature > 0, f"train.temperature={self.temperature} must be > 0")
+        _check(
+            self.contrastive_radius >= 0,
+            f"train.contrastive_radius={self.contrastive_radius} must be >= 0 (0: no mask)",
+        )
         _check(
             self.checkpoint_every_s >= 0,
             f"train.checkpoint_every_s={self.checkpoint_every_s} must be >= 0 (0: every epoch)",

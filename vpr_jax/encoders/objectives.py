@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from vpr_jax.data.augment import AugmentConfig, augment_batch
 from vpr_jax.encoders import autoencoders as ae
@@ -78,28 +78,46 @@ def inputs_and_targets(objective: str, batch: Array) -> tuple[Array, Array]:
 
 
 def contrastive_loss(
-    codes_a: Float[Array, "b d"], codes_b: Float[Array, "b d"], temperature: float
+    codes_a: Float[Array, "b d"],
+    codes_b: Float[Array, "b d"],
+    temperature: float,
+    places: Int[Array, " b"] | None = None,
+    radius: int = 0,
 ) -> Float[Array, " b"]:
     """Symmetric InfoNCE per place: row i of ``codes_a`` and of ``codes_b`` are one place in
     two seasons; every other row of the batch is a wrong place. Cosine similarities over
-    ``temperature``, cross-entropy of the right place in both directions, averaged."""
+    ``temperature``, cross-entropy of the right place in both directions, averaged.
+
+    On a route, neighbouring places look alike and count as correct matches: with
+    ``places`` (each row's position along the route) and ``radius`` > 0, rows within
+    ``radius`` positions of row i (other than i) are left out of its wrong places."""
     a = codes_a / (jnp.linalg.norm(codes_a, axis=1, keepdims=True) + 1e-8)
     b = codes_b / (jnp.linalg.norm(codes_b, axis=1, keepdims=True) + 1e-8)
     logits = a @ b.T / temperature
     right = jnp.diagonal(logits)
+    if places is not None and radius > 0:
+        near = jnp.abs(places[:, None] - places[None, :]) <= radius
+        logits = jnp.where(near & ~jnp.eye(len(places), dtype=bool), -jnp.inf, logits)
     a_to_b = jax.nn.logsumexp(logits, axis=1) - right
     b_to_a = jax.nn.logsumexp(logits, axis=0) - right
     return (a_to_b + b_to_a) / 2
 
 
 def per_example_loss(
-    objective: str, model: nnx.Module, batch: Array, temperature: float = 0.1
+    objective: str,
+    model: nnx.Module,
+    batch: Array,
+    temperature: float = 0.1,
+    places: Int[Array, " n"] | None = None,
+    radius: int = 0,
 ) -> Float[Array, " n"]:
     """The loss of ``model`` (an auto-encoder module) per example of ``batch``: mean squared
-    error of its output (reconstruct, cross_season) or InfoNCE of its code (contrastive)."""
+    error of its output (reconstruct, cross_season) or InfoNCE of its code (contrastive,
+    its wrong places leaving out those within ``radius`` of ``places``)."""
     if objective == "contrastive":
         codes = model.encode(jnp.concatenate([batch[:, 0], batch[:, 1]]))
-        return contrastive_loss(codes[: len(batch)], codes[len(batch) :], temperature)
+        n = len(batch)
+        return contrastive_loss(codes[:n], codes[n:], temperature, places, radius)
     inputs, targets = inputs_and_targets(objective, batch)
     targets = model.residual(targets)  # what a model that removes components reproduces
     errors = jnp.mean((model(inputs) - targets) ** 2, axis=tuple(range(1, inputs.ndim)))
@@ -109,9 +127,16 @@ def per_example_loss(
 
 
 def loss(
-    objective: str, graphdef, params, batch: Array, temperature: float = 0.1
+    objective: str,
+    graphdef,
+    params,
+    batch: Array,
+    temperature: float = 0.1,
+    places: Int[Array, " n"] | None = None,
+    radius: int = 0,
 ) -> Float[Array, ""]:
     """The training loss of a batch: the mean of its per-example losses."""
     if objective == "reconstruct":  # the same mean, summed as the seed's loss always was
         return ae.reconstruction_loss(graphdef, params, batch)
-    return jnp.mean(per_example_loss(objective, nnx.merge(graphdef, params), batch, temperature))
+    model = nnx.merge(graphdef, params)
+    return jnp.mean(per_example_loss(objective, model, batch, temperature, places, radius))

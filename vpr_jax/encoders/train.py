@@ -156,12 +156,14 @@ def make_train_step(
     mesh: Mesh | None = None,
     objective: str = "reconstruct",
     temperature: float = 0.1,
+    radius: int = 0,
 ):
-    """The jitted step ``(params, opt_state, batch, key) -> (params, opt_state, metrics)``
-    for one architecture, optimizer and objective (``vpr_jax.encoders.objectives``: a batch
-    of images, or of aligned pairs); metrics: ``loss`` and the ``inputs`` it trained on (the
-    batch after augmentation). Fixed arrays of the model (``ae.FIXED``: a removal's mean
-    and components) are carried through, never trained.
+    """The jitted step ``(params, opt_state, batch, key, places=None) -> (params, opt_state,
+    metrics)`` for one architecture, optimizer and objective (``vpr_jax.encoders.objectives``:
+    a batch of images, or of aligned pairs; ``places``: the batch's positions along the
+    route, which the contrastive objective's ``radius`` reads); metrics: ``loss`` and the
+    ``inputs`` it trained on (the batch after augmentation). Fixed arrays of the model
+    (``ae.FIXED``: a removal's mean and components) are carried through, never trained.
 
     With a ``mesh`` the batch is split across its devices (data parallel): parameters and
     optimizer state are replicated and XLA all-reduces the gradients. Augmentation draws
@@ -169,17 +171,18 @@ def make_train_step(
     """
     batch_sharding = None if mesh is None else NamedSharding(mesh, P(AXIS))
 
-    def loss_fn(trainable, fixed, batch):
-        return objectives.loss(objective, graphdef, {**trainable, **fixed}, batch, temperature)
+    def loss_fn(trainable, fixed, batch, places):
+        params = {**trainable, **fixed}
+        return objectives.loss(objective, graphdef, params, batch, temperature, places, radius)
 
     @jax.jit
-    def train_step(params, opt_state, batch: Float[Array, "b ..."], key: jax.Array):
+    def train_step(params, opt_state, batch: Float[Array, "b ..."], key: jax.Array, places=None):
         if batch_sharding is not None:
             batch = jax.lax.with_sharding_constraint(batch, batch_sharding)
         if augment is not None:
             batch = objectives.augment(key, batch, augment, objective)
         trainable, fixed = ae.split_fixed(params)
-        loss, grads = jax.value_and_grad(loss_fn)(trainable, fixed, batch)
+        loss, grads = jax.value_and_grad(loss_fn)(trainable, fixed, batch, places)
         updates, opt_state = tx.update(grads, opt_state, trainable)
         params = {**optax.apply_updates(trainable, updates), **fixed}
         # The augmented batch stays on the device unless the caller fetches it (TensorBoard
@@ -190,24 +193,30 @@ def make_train_step(
 
 
 @functools.partial(jax.jit, static_argnums=3)
-def take_batch(data: Array, order: Array, index: Array, batch_size: int) -> Array:
-    """Batch ``index`` of an epoch: ``data[order[index * b : (index + 1) * b]]``, compiled
-    once (a Python slice with a new start would compile a new program per step)."""
+def take_batch(data: Array, order: Array, index: Array, batch_size: int) -> tuple[Array, Array]:
+    """Batch ``index`` of an epoch: ``data[order[index * b : (index + 1) * b]]`` and those
+    rows' positions (a training place's along the route), compiled once (a Python slice
+    with a new start would compile a new program per step)."""
     picks = jax.lax.dynamic_slice_in_dim(order, index * batch_size, batch_size)
-    return data[picks]
+    return data[picks], picks
 
 
 @functools.lru_cache(maxsize=32)  # per architecture: season pairs share compilations
 def make_eval_loss(
-    graphdef, batch_size: int, objective: str = "reconstruct", temperature: float = 0.1
+    graphdef,
+    batch_size: int,
+    objective: str = "reconstruct",
+    temperature: float = 0.1,
+    radius: int = 0,
 ) -> Callable:
-    """The objective's mean loss over any number of examples, in fixed-size batches (a
-    contrastive batch's places are each other's wrong places)."""
+    """The objective's mean loss over any number of examples (in route order), in
+    fixed-size batches (a contrastive batch's places are each other's wrong places, but
+    for those within ``radius``)."""
 
     @jax.jit
-    def per_example(params, batch):
+    def per_example(params, batch, places):
         model = nnx.merge(graphdef, params)
-        return objectives.per_example_loss(objective, model, batch, temperature)
+        return objectives.per_example_loss(objective, model, batch, temperature, places, radius)
 
     def eval_loss(params, examples: np.ndarray) -> float:
         losses = []
@@ -215,7 +224,8 @@ def make_eval_loss(
             chunk = examples[start : start + batch_size]
             pad = batch_size - len(chunk)  # pad the tail: one compiled shape
             padded = np.concatenate([chunk, np.repeat(chunk[-1:], pad, axis=0)]) if pad else chunk
-            losses.append(np.asarray(per_example(params, padded))[: len(chunk)])
+            places = np.minimum(np.arange(start, start + batch_size), len(examples) - 1)
+            losses.append(np.asarray(per_example(params, padded, places))[: len(chunk)])
         return float(np.mean(np.concatenate(losses)))
 
     return eval_loss
@@ -277,12 +287,12 @@ def make_trainer(
     per_step = max(1, settings.batch_size // objectives.examples_per_image(objective))
     batch_size = min(per_step, n_train)
     augment = AugmentConfig() if settings.augment else None
-    temperature = settings.temperature
+    temperature, radius = settings.temperature, settings.contrastive_radius
     trainer = Trainer(
         graphdef=graphdef,
         objective=objective,
-        train_step=make_train_step(graphdef, tx, augment, mesh, objective, temperature),
-        eval_loss=make_eval_loss(graphdef, batch_size, objective, temperature),
+        train_step=make_train_step(graphdef, tx, augment, mesh, objective, temperature, radius),
+        eval_loss=make_eval_loss(graphdef, batch_size, objective, temperature, radius),
         reconstruct=ae.make_reconstruct(graphdef),
         settings=settings,
         batch_size=batch_size,
@@ -364,9 +374,9 @@ def train_epoch(
     params, opt_state, losses = state.params, state.opt_state, []
     with Bar(trainer.steps_per_epoch, f"{name} epoch {epoch}/{trainer.settings.epochs}") as bar:
         for s in range(trainer.steps_per_epoch):
-            batch = take_batch(train_dev, order, s, trainer.batch_size)
+            batch, places = take_batch(train_dev, order, s, trainer.batch_size)
             params, opt_state, metrics = trainer.train_step(
-                params, opt_state, batch, jax.random.fold_in(epoch_key, s + 1)
+                params, opt_state, batch, jax.random.fold_in(epoch_key, s + 1), places
             )
             losses.append(metrics["loss"])  # on the device until the epoch ends: no waits
             if epoch == 1 and s == 0 and trainer.settings.augment:
