@@ -117,9 +117,11 @@ def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
 def read_outside_sets(cfg: SweepConfig, bench: Benchmark) -> dict[str, dict[str, OutsideSide]]:
     """Every set of outside descriptors (``precomputed.*``), read once in the benchmark's
     order: a file that cannot serve its images is one line now, before any method runs."""
+    from vpr_jax.methods.precomputed import checked_sides  # JAX: only for outside sets
+
     sides = {"database": bench.db_names, "queries": bench.query_names}
     return {
-        name: read_precomputed(files, name, sides, cfg.data.root)
+        name: checked_sides(name, files, read_precomputed(files, name, sides, cfg.data.root))
         for name, files in cfg.precomputed.items()
     }
 

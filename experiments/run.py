@@ -161,7 +161,6 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
         + (f", outside descriptors {list(cfg.precomputed)}" if cfg.precomputed else "")
         + f", logdir {logdir}"
     )
-    log_protocols(plan, log)
     cells, todo = _cells_to_do(plan, log)
     write_experiment_config(
         out,
@@ -215,6 +214,7 @@ def _run_pair(
         nonlocal run
         if run is None:
             data = load_pair(plan, db, query)
+            log_protocol(plan, data, log)  # before the pair's first cell
             run = PairRun(
                 plan=plan,
                 data=data,
@@ -254,13 +254,10 @@ def load_pair(plan: Plan, db: str, query: str) -> PairData:
     return data._replace(protocol=fingerprint(protocol_record(data, plan.benchmark is not None)))
 
 
-def log_protocols(plan: Plan, log: RunLog) -> None:
-    """One line per pair: its protocol's fingerprint and what it stands for."""
-    for db, query in plan.pairs:
-        data = load_pair(plan, db, query)
-        what = describe_protocol(data, plan.benchmark is not None)
-        log(f"protocol {data.name} {data.protocol}: {what}")
-        del data
+def log_protocol(plan: Plan, data: PairData, log: RunLog) -> None:
+    """One line for a pair loaded to be run: its protocol's fingerprint and what it is."""
+    what = describe_protocol(data, plan.benchmark is not None)
+    log(f"protocol {data.name} {data.protocol}: {what}")
 
 
 def _save_descriptors(

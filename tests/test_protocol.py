@@ -2,7 +2,7 @@
 definition in docs/metrics.md alone (JSON of the frame ids, ground truth, direction and
 validation places; SHA-256), equal for the same data and split, different for another
 tolerance, direction or frame list; and carried by every row of a real sweep, printed in its
-first lines and written into results.md."""
+run log as each pair starts and written into results.md."""
 
 import csv
 import hashlib

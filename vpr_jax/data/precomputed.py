@@ -111,11 +111,12 @@ def setting_key(name: str, side: str) -> str:
 
 class OutsideSide(NamedTuple):
     """One side of a set of outside descriptors, every image of that side of the benchmark:
-    its rows, each image name's row, and the names whose row is all zero."""
+    its rows, each image name's row, and the names whose row is zero."""
 
     rows: np.ndarray  # float32 (n_images, d)
     row_of: dict[str, int]
-    zero: tuple[str, ...] = ()  # images whose descriptor is all zero: matched arbitrarily
+    zero: tuple[str, ...] = ()  # images whose descriptor is zero: matched arbitrarily
+    # (vpr_jax.methods.precomputed.checked_sides finds them)
 
     def of(self, names: np.ndarray) -> np.ndarray:
         """The descriptors of the images ``names`` (a pair's test or validation part)."""
@@ -132,8 +133,7 @@ def read_precomputed(
     for side, names in sides.items():
         path, key = files[side], setting_key(name, side)
         rows = descriptor_rows(open_descriptors(path, key), names, root, key, path)
-        zero = _zero_rows(rows, names, f"{key}={path}")
-        out[side] = OutsideSide(rows=rows, row_of={n: i for i, n in enumerate(names)}, zero=zero)
+        out[side] = OutsideSide(rows=rows, row_of={n: i for i, n in enumerate(names)})
     widths = {side: out[side].rows.shape[1] for side in out}
     if len(set(widths.values())) > 1:
         db, query = (f"{setting_key(name, s)}={files[s]} has {widths[s]:,}" for s in SIDES)
@@ -142,23 +142,3 @@ def read_precomputed(
             "width, each row one image's descriptor from the same model"
         )
     return out
-
-
-# A unit row this close to the first nonzero one (Euclidean) points the same way.
-SAME_DIRECTION = 1e-6
-
-
-def _zero_rows(rows: np.ndarray, names: np.ndarray, where: str) -> tuple[str, ...]:
-    """The images whose row is all zero; UserError when every row is zero or every row
-    points the same way (constant descriptors: cosine cannot tell any two images apart)."""
-    norms = np.linalg.norm(rows.astype(np.float64), axis=1)
-    zero = norms == 0.0
-    if zero.all():
-        raise UserError(f"{where}: every row is zero: recompute the descriptors")
-    unit = rows[~zero] / norms[~zero, None]
-    if len(unit) > 1 and np.abs(unit - unit[0]).max() < SAME_DIRECTION:
-        raise UserError(
-            f"{where}: every nonzero row points the same way (constant descriptors), so "
-            "cosine matching cannot tell the images apart: recompute the descriptors"
-        )
-    return tuple(str(n) for n in np.asarray(names)[zero])

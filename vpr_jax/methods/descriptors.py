@@ -136,9 +136,21 @@ def _largest_gap(desc, inv, first):
     return jnp.max(jnp.where(inv == 0.0, 0.0, gap))
 
 
+class Degenerate(NamedTuple):
+    """What makes cosine matching arbitrary (``degenerate``)."""
+
+    zero: np.ndarray  # bool per row: the row is zero
+    one_way: bool  # every other row points the same way
+
+
 def degenerate_rows(desc: Float[Array, "n d"]) -> tuple[int, bool]:
-    """What makes cosine matching arbitrary: (how many rows are zero, whether all the other
-    rows point the same way).
+    """(how many rows are zero, whether all the other rows point the same way)."""
+    found = degenerate(desc)
+    return int(found.zero.sum()), found.one_way
+
+
+def degenerate(desc: Float[Array, "n d"]) -> Degenerate:
+    """Which rows are zero, and whether all the other rows point the same way.
 
     A zero row scores 0 against everything (norm at most 1e-6 of the largest row's, or 0);
     rows that all point one way (pairwise cosine above 1 - 5e-7) score the same against
@@ -151,8 +163,8 @@ def degenerate_rows(desc: Float[Array, "n d"]) -> tuple[int, bool]:
     zero = norms <= max(1e-6 * norms.max(initial=0.0), _EPS)
     inv = np.where(zero, 0.0, 1.0 / np.maximum(norms, _EPS)).astype(np.float32)
     if zero.all():
-        return int(zero.sum()), False
+        return Degenerate(zero, False)
     i = int(np.argmin(zero))  # the first nonzero row
     first = np.asarray(desc[i], np.float32) * inv[i]
     gap = max(float(_largest_gap(desc[r], inv[r], first)) for r in rows)
-    return int(zero.sum()), gap <= 1e-3 and int((~zero).sum()) > 1
+    return Degenerate(zero, gap <= 1e-3 and int((~zero).sum()) > 1)

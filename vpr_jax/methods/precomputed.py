@@ -14,8 +14,31 @@ from __future__ import annotations
 import math
 
 from vpr_jax.data.pair import PairData
-from vpr_jax.data.precomputed import OutsideSide
-from vpr_jax.methods.descriptors import Descriptors, Part, degenerate_warning
+from vpr_jax.data.precomputed import OutsideSide, setting_key
+from vpr_jax.errors import UserError
+from vpr_jax.methods.descriptors import Descriptors, Part, degenerate, degenerate_warning
+
+
+def checked_sides(
+    name: str, files: dict[str, str], sides: dict[str, OutsideSide]
+) -> dict[str, OutsideSide]:
+    """Set ``name``'s sides (``files``: side -> path) with the names of their zero rows;
+    UserError for a side whose rows are all zero, or all point the same way (constant
+    descriptors): cosine matching cannot tell its images apart (``degenerate``)."""
+    out = {}
+    for side, rows in sides.items():
+        where = f"{setting_key(name, side)}={files[side]}"
+        found = degenerate(rows.rows)
+        if found.zero.all():
+            raise UserError(f"{where}: every row is zero: recompute the descriptors")
+        if found.one_way:
+            raise UserError(
+                f"{where}: every nonzero row points the same way (constant descriptors), so "
+                "cosine matching cannot tell the images apart: recompute the descriptors"
+            )
+        zero = [n for n, i in rows.row_of.items() if found.zero[i]]
+        out[side] = rows._replace(zero=tuple(zero))
+    return out
 
 
 def precomputed_descriptors(
@@ -43,8 +66,8 @@ def precomputed_descriptors(
 
 
 def _zero_warning(sides: dict[str, OutsideSide], pair: PairData) -> str | None:
-    """One line naming the pair's images whose outside descriptor is all zero (their
-    cosine to every image is 0: their matches are arbitrary), or None."""
+    """One line naming the pair's images whose outside descriptor is zero (their cosine to
+    every image is 0: their matches are arbitrary), or None."""
     found = []
     for side, names in (("database", pair.names.db), ("queries", pair.names.query)):
         zero = sorted(set(sides[side].zero) & {str(n) for n in names})
@@ -54,6 +77,6 @@ def _zero_warning(sides: dict[str, OutsideSide], pair: PairData) -> str | None:
     if not found:
         return None
     return (
-        f"all-zero descriptors: {' and '.join(found)}; cosine scores them 0 against every "
+        f"zero descriptors: {' and '.join(found)}; cosine scores them 0 against every "
         "image, so their matches are arbitrary: recompute those descriptors"
     )

@@ -32,12 +32,12 @@ import numpy as np
 
 from vpr_jax.encoders.saved import ENCODER_JSON
 from vpr_jax.errors import UserError
+from vpr_jax.evaluation.matching import l2_normalize
 
 PAIRS_TXT, SCORES_CSV = "pairs.txt", "scores.csv"
 NAMES_TXT = {"database": "database.txt", "queries": "queries.txt"}
 DESCRIPTORS_NPY = {"database": "database.npy", "queries": "queries.npy"}
 GLOBAL_FEATS_H5, GLOBAL_DESCRIPTOR = "global-feats.h5", "global_descriptor"  # hloc's names
-_EPS = 1e-12  # vpr_jax.evaluation.matching's: a zero descriptor stays zero
 SCORE_COLUMNS = ("query", "database", "rank", "score", "correct")
 _SKIPPED = {".lock", ENCODER_JSON}  # not copied from a saved encoder's folder
 
@@ -54,11 +54,9 @@ def write_descriptors(folder: Path, side: str, descriptors: np.ndarray) -> None:
 
 
 def unit_rows(descriptors: np.ndarray) -> np.ndarray:
-    """float32 ``(n, d)``: each row divided by its L2 norm (in float64), as the sweep's
-    cosine divides it; a zero row stays zero."""
-    x = np.asarray(descriptors, np.float64)
-    norm = np.sqrt(np.sum(x * x, axis=1, keepdims=True))
-    return (x / np.maximum(norm, _EPS)).astype(np.float32)
+    """float32 ``(n, d)``: each row L2-normalised by the matcher's own ``l2_normalize`` (a
+    zero row stays zero)."""
+    return np.asarray(l2_normalize(np.asarray(descriptors, np.float32)), np.float32)
 
 
 def write_global_features(
