@@ -134,6 +134,8 @@ DATA_CASES = {
 
 @pytest.mark.parametrize("case", DATA_CASES)
 def test_bad_data(case, tmp_path):
+    """In this process: the command line's own refusals are test_logdir_*'s and
+    test_foreign_logdir's, run in a fresh interpreter."""
     make, words = DATA_CASES[case]
     root = tmp_path / "data"
     root.mkdir()
@@ -141,7 +143,7 @@ def test_bad_data(case, tmp_path):
     logdir = tmp_path / "runs"
     logdir.mkdir()
     (logdir / "keep.txt").write_text("mine")
-    proc = run_cli(*args, f"logdir={logdir}")
+    proc = run_here(*args, f"logdir={logdir}")
     assert_one_line_error(proc, *words)
     assert _snapshot(logdir) == {"keep.txt": hashlib.sha256(b"mine").hexdigest()}
 
@@ -222,7 +224,7 @@ CONFIG_CASES = {
 
 @pytest.mark.parametrize("case", CONFIG_CASES)
 def test_bad_config(case, tmp_path):
-    """In this process (the command line itself: test_bad_data's and the cases below)."""
+    """In this process (the command line itself: test_logdir_* and test_foreign_logdir)."""
     args, words = CONFIG_CASES[case]
     proc = run_here(*args, f"logdir={tmp_path / 'runs'}")
     assert_one_line_error(proc, *words)

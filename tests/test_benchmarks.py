@@ -1,5 +1,6 @@
-"""Benchmarks that are not frame-aligned, run through the CLI on tiny datasets the tests
-build: VPR-Bench's folders with a ground-truth file, a positions benchmark with CSVs,
+"""Benchmarks that are not frame-aligned, run on tiny datasets the tests
+build (the first through a fresh interpreter's CLI, the others by its main in this
+process): VPR-Bench's folders with a ground-truth file, a positions benchmark with CSVs,
 Nordland* from a tiny 64x32 release, and an aligned route to train on. Raw-pixel recall@1
 equals a numpy reference; bad layouts are one line, exit 2, nothing written."""
 
@@ -66,7 +67,7 @@ def test_the_ground_truth_file_decides_what_is_correct(route, tmp_path):
     """The same images with every reference list shifted by 30 places: recall@1 collapses."""
     root = tmp_path / "bench"
     write_vpr_bench(root, route, skew=30)
-    proc = run_cli(
+    proc = run_here(
         "data.source=vpr_bench", f"data.root={root}", *RAW, f"logdir={tmp_path / 'runs'}"
     )
     assert proc.returncode == 0, proc.stderr
@@ -102,7 +103,7 @@ def write_positions(root: Path, route, rng) -> tuple[np.ndarray, np.ndarray]:
 def test_positions_raw_recall_equals_a_numpy_reference(route, tmp_path):
     root = tmp_path / "drive"
     db_xy, q_xy = write_positions(root, route, np.random.default_rng(0))
-    proc = run_cli(
+    proc = run_here(
         "data.source=positions",
         f"data.root={root}",
         "data.radius_m=20",
@@ -125,7 +126,7 @@ def test_positions_raw_recall_equals_a_numpy_reference(route, tmp_path):
 def test_an_aligned_route_trains_what_learns_from_alignment(route, tmp_path):
     root = tmp_path / "bench"
     write_vpr_bench(root, route)
-    proc = run_cli(
+    proc = run_here(
         "data.source=vpr_bench",
         f"data.root={root}",
         "data.train_source=synthetic",
@@ -155,7 +156,7 @@ def test_nordland_star_from_a_tiny_release(route, tmp_path):
         "winter": [u8(im) for im in route.images["fall"]],
     }
     root = write_release(tmp_path / "release", frames)  # images-00001 ... images-00120
-    proc = run_cli(
+    proc = run_here(
         "preset=nordland_star",
         f"data.root={root}",
         "data.frame_list=null",  # every frame: the tiny release has none of the clean list's
@@ -185,7 +186,7 @@ def test_nordland_clean_reads_its_frame_range(route, tmp_path):
     seasons = ("spring", "summer", "fall", "winter")
     images = [u8(im) for im in route.images["summer"]]
     root = write_release(tmp_path / "release", {s: images for s in seasons})
-    proc = run_cli(
+    proc = run_here(
         "preset=nordland_clean",
         f"data.root={root}",
         "data.frame_list=null",  # every frame: the tiny release has none of the clean list's
@@ -320,7 +321,7 @@ def test_sequences_of_a_benchmark_follow_its_file_order(route, tmp_path):
     for i in range(N_PLACES):
         table[i] = (i, [j for j in (i - 1, i, i + 1) if 0 <= j < N_PLACES])
     np.save(root / "ground_truth_new.npy", table, allow_pickle=True)
-    proc = run_cli(
+    proc = run_here(
         "data.source=vpr_bench",
         f"data.root={root}",
         *RAW,

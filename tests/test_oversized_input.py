@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import assert_one_line_error, run_cli
+from tests.conftest import assert_one_line_error, run_here
 from tests.inputs import FOLDERS, SRC_H, SRC_W, write_folders, write_video
 from vpr_jax.data.image_header import image_size
 
@@ -45,7 +45,7 @@ def test_a_30000_square_png_is_refused_from_its_header(tmp_path):
     bomb = root / "winter" / "frame_0007.png"
     _huge_png(bomb, 30_000, 30_000)
     assert bomb.stat().st_size < 100_000 and image_size(bomb) == (30_000, 30_000)
-    proc = run_cli(*FOLDERS, f"data.root={root}", f"logdir={tmp_path / 'runs'}")
+    proc = run_here(*FOLDERS, f"data.root={root}", f"logdir={tmp_path / 'runs'}")
     assert_one_line_error(proc, str(bomb), "30,000 x 30,000", "data.max_pixels")
     assert not (tmp_path / "runs").exists()
 
@@ -55,7 +55,7 @@ def test_max_pixels_applies_to_jpeg_and_to_video_frames(tmp_path):
     large = root / "summer" / "frame_0003.jpg"
     (root / "summer" / "frame_0003.png").unlink()
     cv2.imwrite(str(large), np.zeros((200, 300, 3), np.uint8))
-    proc = run_cli(
+    proc = run_here(
         *FOLDERS, f"data.root={root}", "data.max_pixels=50000", f"logdir={tmp_path / 'runs'}"
     )
     assert_one_line_error(proc, str(large), "300 x 200", "data.max_pixels=50,000")
@@ -63,7 +63,7 @@ def test_max_pixels_applies_to_jpeg_and_to_video_frames(tmp_path):
     videos.mkdir()
     for season in ("summer", "winter"):
         write_video(videos / f"{season}.avi", 5.0, 10)
-    proc = run_cli(
+    proc = run_here(
         "data.source=nordland_videos",
         f"data.root={videos}",
         "data.seasons=[summer,winter]",

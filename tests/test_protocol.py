@@ -1,16 +1,14 @@
 """The protocol fingerprint (results.csv ``protocol``): computed again here from the
 definition in docs/metrics.md alone (JSON of the frame ids, ground truth, direction and
 validation places; SHA-256), equal for the same data and split, different for another
-tolerance, direction or frame list; and carried by every row of a real sweep, printed in its
-run log as each pair starts and written into results.md."""
+tolerance, direction or frame list. That every row of a real sweep carries it is
+tests/test_sweep.py's (it shares that module's sweep)."""
 
-import csv
 import hashlib
 import json
 import re
 
 import numpy as np
-import pytest
 
 from vpr_jax.config import SplitConfig
 from vpr_jax.data.ground_truth import match_sets
@@ -85,21 +83,3 @@ def test_explicit_ground_truth_and_names_enter_a_benchmarks_fingerprint():
         ),
     }
     assert len(prints) == 3
-
-
-@pytest.mark.timeout(240)
-def test_every_row_of_a_sweep_names_its_protocol(small_sweep):
-    logdir, proc = small_sweep
-    with open(logdir / "results.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
-    by_pair = {}
-    for row in rows:
-        assert re.fullmatch(r"[0-9a-f]{12}", row["protocol"]), row["run"]
-        by_pair.setdefault(row["season_pair"], set()).add(row["protocol"])
-    assert all(len(p) == 1 for p in by_pair.values()), by_pair
-    prints = {pair: next(iter(p)) for pair, p in by_pair.items()}
-    assert len(set(prints.values())) == len(prints)  # another direction, another protocol
-    printed = dict(re.findall(r"^protocol (\S+) ([0-9a-f]{12}): ", proc.stdout, re.M))
-    assert printed == prints
-    results = (logdir / "results.md").read_text()
-    assert all(f"{pair} {fp}" in results for pair, fp in prints.items())

@@ -1,6 +1,7 @@
 """The runner end to end: a subprocess sweep, read back with TensorBoard's own reader."""
 
 import csv
+import re
 import shutil
 
 import cv2
@@ -9,7 +10,7 @@ import pytest
 from tensorboard.plugins.hparams import plugin_data_pb2
 from tensorboard.util import tensor_util
 
-from tests.conftest import SMALL, numpy_cosine, read_run, run_cli
+from tests.conftest import SMALL, numpy_cosine, read_run, run_cli, run_here
 from vpr_jax.outputs.results import COLUMNS, read_results
 
 PAIRS = {"summer-spring", "summer-fall", "spring-fall"}
@@ -209,7 +210,7 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
 
 
 def test_named_pairs_select_database_and_query_seasons(tmp_path):
-    proc = run_cli(*SMALL, "season_pairs=fall-summer", "methods=raw", f"logdir={tmp_path}")
+    proc = run_here(*SMALL, "season_pairs=fall-summer", "methods=raw", f"logdir={tmp_path}")
     assert proc.returncode == 0, proc.stderr
     (row,) = read_results(tmp_path / "results.csv")
     assert (row.db_season, row.query_season) == ("fall", "summer")
@@ -217,7 +218,7 @@ def test_named_pairs_select_database_and_query_seasons(tmp_path):
 
 def test_pixel_output_gives_the_same_metrics(small_sweep, tmp_path):
     logdir, _ = small_sweep
-    proc = run_cli(
+    proc = run_here(
         *SMALL, "season_pairs=summer-fall", "methods=pca", "pca.output=pixels", f"logdir={tmp_path}"
     )
     assert proc.returncode == 0, proc.stderr
@@ -234,7 +235,7 @@ def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path)
 
     logdir = tmp_path / "sections"
     split_keys = ["split.test_sections=2", "split.n_test=60", "split.gap=20", "split.database=all"]
-    proc = run_cli(
+    proc = run_here(
         *[k for k in SMALL if not k.startswith("split.")],
         *split_keys,
         "methods=[raw]",
@@ -294,3 +295,21 @@ def test_each_pair_has_one_summary_run_of_its_selected_cells(small_sweep):
                 tensor_util.make_ndarray(mine.tensor_proto),
                 tensor_util.make_ndarray(cells.tensor_proto),
             )
+
+
+@pytest.mark.timeout(240)
+def test_every_row_of_a_sweep_names_its_protocol(small_sweep):
+    logdir, proc = small_sweep
+    with open(logdir / "results.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    by_pair = {}
+    for row in rows:
+        assert re.fullmatch(r"[0-9a-f]{12}", row["protocol"]), row["run"]
+        by_pair.setdefault(row["season_pair"], set()).add(row["protocol"])
+    assert all(len(p) == 1 for p in by_pair.values()), by_pair
+    prints = {pair: next(iter(p)) for pair, p in by_pair.items()}
+    assert len(set(prints.values())) == len(prints)  # another direction, another protocol
+    printed = dict(re.findall(r"^protocol (\S+) ([0-9a-f]{12}): ", proc.stdout, re.M))
+    assert printed == prints
+    results = (logdir / "results.md").read_text()
+    assert all(f"{pair} {fp}" in results for pair, fp in prints.items())

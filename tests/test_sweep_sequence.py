@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from tensorboard.plugins.hparams import plugin_data_pb2
 
-from tests.conftest import read_run, run_cli, shared_folder, shared_sweep
+from tests.conftest import read_run, run_cli, run_here, shared_folder, shared_sweep
 from tests.inputs import write_release
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
@@ -117,7 +117,7 @@ def test_a_longer_ds_extends_a_finished_sweep(releases, base_sweep, tmp_path):
 def test_sequence_lengths_without_enabling_them_are_pointed_out(tmp_path):
     """A ds list while sequence matching is off would be silently single images: the run
     log says so (here, before the missing data folder stops the run)."""
-    proc = run_cli(
+    proc = run_here(
         "data.source=nordland_images",
         f"data.root={tmp_path / 'absent'}",
         "sequence.ds=[1,5]",

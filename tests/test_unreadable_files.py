@@ -7,14 +7,14 @@ import os
 import numpy as np
 import pytest
 
-from tests.conftest import assert_one_line_error, run_cli
+from tests.conftest import assert_one_line_error, run_here
 from tests.inputs import FOLDERS, write_folders
 from vpr_jax.data import images
 from vpr_jax.errors import UserError
 
 
 def _sweep(root, tmp_path):
-    return run_cli(*FOLDERS, f"data.root={root}", f"logdir={tmp_path / 'runs'}")
+    return run_here(*FOLDERS, f"data.root={root}", f"logdir={tmp_path / 'runs'}")
 
 
 def test_a_symbolic_link_loop_among_the_frames_is_one_line(tmp_path):
