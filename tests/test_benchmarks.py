@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import assert_one_line_error, run_cli, run_here
+from tests.conftest import REPO, assert_one_line_error, run_cli, run_here
 from tests.inputs import N_PLACES, read_grey, u8, write_release, write_vpr_bench
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.outputs.results import read_results
@@ -239,6 +239,11 @@ BAD = {
         ["vpr_bench", "methods=[fae]", "fae.objective=cross_season"],
         ["fae.objective=cross_season needs aligned training places"],
     ),
+    "the lda start without aligned places": (
+        lambda r: None,
+        ["vpr_bench", "methods=[fae]", "fae.init=lda"],
+        ["fae.init=lda needs aligned training places", "fae.init=whitened_pca"],
+    ),
     "a pair the benchmark has not": (
         lambda r: None,
         ["vpr_bench", "season_pairs=summer-fall"],
@@ -335,3 +340,33 @@ def test_sequences_of_a_benchmark_follow_its_file_order(route, tmp_path):
     assert rows[4].recall_at_1 > rows[1].recall_at_1
     table = (tmp_path / "runs" / "results.md").read_text()
     assert "a match is correct within ground_truth_new.npy" in table
+
+
+def test_the_halves_script_lays_out_a_route_and_a_benchmark_that_share_no_place(tmp_path):
+    """benchmarks/halves.py: the tuning route holds frames up to the split, the reporting
+    benchmark the rest, read back by the suite's own readers; its ground truth is every
+    reference within the tolerance of each query's frame, by the definition."""
+    import importlib.util
+
+    from tests.inputs import write_folders
+    from vpr_jax.data.vpr_bench import read_vpr_bench
+
+    spec = importlib.util.spec_from_file_location("halves", REPO / "benchmarks" / "halves.py")
+    halves = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(halves)
+    root = write_folders(tmp_path / "frames", n=50)  # frames 0..49
+    out = tmp_path / "out"
+    assert halves.main([str(root), str(out), "--split", "20", "--query-step", "3"]) == 0
+    tuning = sorted(p.name for p in (out / "tuning" / "winter").iterdir())
+    assert tuning == [f"frame_{i:04d}.png" for i in range(21)]
+    bench = read_vpr_bench(out / "reporting", log=lambda _: None)
+    refs, queries = list(range(21, 50)), list(range(21, 50, 3))
+    for images, season, frames in ((bench.db, "summer", refs), (bench.query, "winter", queries)):
+        expected = [read_grey(root / season / f"frame_{i:04d}.png") for i in frames]
+        np.testing.assert_array_equal(images, np.stack(expected).reshape(images.shape))
+    truth = bench.truth
+    for n, frame in enumerate(queries):
+        row = truth.indices[truth.indptr[n] : truth.indptr[n + 1]]
+        assert [refs[j] for j in row] == [f for f in refs if abs(f - frame) <= 1]
+    with pytest.raises(SystemExit, match="exists"):
+        halves.main([str(root), str(out)])

@@ -261,3 +261,99 @@ def test_the_linear_start_codes_are_the_pca_coefficients_of_the_inputs(seasons, 
     np.testing.assert_allclose(params["decoder"]["kernel"], params["encoder"]["kernel"].T)
     if whiten:
         np.testing.assert_allclose(np.var(coefficients, axis=0, ddof=1), 1.0, rtol=1e-2)
+
+
+def test_the_lda_start_codes_are_within_place_whitened_coordinates_of_the_inputs(seasons):
+    """numpy oracle: scikit-learn's PCA of both seasons' inputs, the within-place scatter
+    of the aligned places in it, shrunk towards trace/m x I and whitened (eigh, ascending)."""
+    a, b = seasons[0][:120], seasons[1][:120]
+    graphdef, drawn = ae.build(ae.FAESpec(hidden=9, standardise=True), jax.random.key(0))
+    params = ae.lda_start(graphdef, drawn, a, b, shrinkage=0.2)
+    model = nnx.merge(graphdef, params)
+    ia, ib = (np.asarray(model.inputs(x), np.float64) for x in (a, b))
+    pca = PCA(n_components=4, svd_solver="full").fit(np.concatenate([ia, ib]))
+    za, zb = pca.transform(ia), pca.transform(ib)
+    scatter = (za - zb).T @ (za - zb) / (4 * len(za))
+    regularised = 0.8 * scatter + 0.2 * np.trace(scatter) / 4 * np.eye(4)
+    eigvals, eigvecs = np.linalg.eigh(regularised)
+    expected = np.concatenate([za, zb]) @ eigvecs / np.sqrt(eigvals)
+    codes = np.asarray(model.encode(np.concatenate([a, b])), np.float64)
+    coefficients = codes[:, 0:8:2] - codes[:, 1:8:2]
+    signs = np.sign(np.sum(coefficients * expected, axis=0))
+    np.testing.assert_allclose(coefficients * signs, expected, atol=2e-3 * np.abs(expected).max())
+    np.testing.assert_array_equal(
+        params["encoder"]["kernel"][:, 8], drawn["encoder"]["kernel"][:, 8]
+    )
+
+
+def test_start_decay_adds_its_pull_towards_the_start_to_the_gradient(seasons):
+    """Plain SGD, one step from weights moved off their start: the step with
+    ``start_decay`` d differs from the step without by -learning_rate x d x (params -
+    anchor), leaf by leaf (the gradient of d/2 x ||params - anchor||^2)."""
+    from vpr_jax.encoders.train import make_optimizer, make_train_step, start_penalty
+
+    graphdef, anchor = ae.build(ae.FAESpec(hidden=8, standardise=True), jax.random.key(0))
+    params = jax.tree.map(lambda a: a + 0.01 * jnp.cos(jnp.arange(a.size)).reshape(a.shape), anchor)
+    settings = TrainConfig(optimizer="sgd", learning_rate=0.1, augment=False)
+    tx = make_optimizer(settings)
+    batch = jnp.asarray(np.stack([seasons[0][:8], seasons[1][:8]], axis=1))
+    key = jax.random.key(1)
+    steps = {
+        decay: make_train_step(graphdef, tx, None, None, "contrastive", 0.1, 0, decay)(
+            params, tx.init(params), batch, key, jnp.arange(8), anchor
+        )
+        for decay in (0.0, 0.5)
+    }
+    assert float(steps[0.0][2]["loss"]) == float(steps[0.5][2]["loss"])  # the objective's
+    for moved, plain, p, a in zip(
+        *(jax.tree.leaves(x) for x in (steps[0.5][0], steps[0.0][0], params, anchor)),
+        strict=True,
+    ):
+        expected = -0.1 * 0.5 * (np.asarray(p, np.float64) - np.asarray(a, np.float64))
+        np.testing.assert_allclose(np.asarray(moved) - np.asarray(plain), expected, atol=1e-6)
+    distance = sum(
+        np.sum((np.asarray(p, np.float64) - np.asarray(a)) ** 2)
+        for p, a in zip(jax.tree.leaves(params), jax.tree.leaves(anchor), strict=True)
+    )
+    np.testing.assert_allclose(float(start_penalty(params, anchor)), distance / 2, rtol=1e-5)
+
+
+def test_a_cae_started_at_lda_leads_with_the_fae_start_and_keeps_its_convolutions_alive(seasons):
+    """The CAE's linear branch, started at lda, codes as an FAE of as many units started
+    there (the FAE's start has its numpy oracle above); the conv code is the drawn one
+    times CONV_START_SCALE (ReLU is positively homogeneous), and a contrastive step moves
+    every convolution (a zeroed code layer would not)."""
+    from vpr_jax.encoders.train import make_optimizer, make_train_step
+
+    a, b = seasons[0][:64], seasons[1][:64]
+    spec = ae.CAESpec(
+        channels=(4, 8),
+        kernel_sizes=(3, 3),
+        code_channels=4,
+        space_to_depth=2,
+        standardise=True,
+        linear=12,
+    )
+    graphdef, drawn = ae.build(spec, jax.random.key(0))
+    started = ae.lda_start(graphdef, drawn, a, b)
+    fae_graph, fae_drawn = ae.build(ae.FAESpec(hidden=12, standardise=True), jax.random.key(0))
+    fae = ae.lda_start(fae_graph, fae_drawn, a, b)
+    images = np.concatenate([a, b])
+    codes = np.asarray(ae.make_encode(graphdef)(started, images))
+    np.testing.assert_allclose(
+        codes[:, :12], ae.make_encode(fae_graph)(fae, images), rtol=1e-4, atol=1e-4
+    )
+    drawn_conv = np.asarray(ae.make_encode(graphdef)(drawn, images))[:, 12:]
+    np.testing.assert_allclose(
+        codes[:, 12:], ae.CONV_START_SCALE * drawn_conv, rtol=1e-4, atol=1e-7
+    )
+    assert codes.shape == (128, 12 + 4 * 8 * 4)
+
+    tx = make_optimizer(TrainConfig(augment=False))
+    step = make_train_step(graphdef, tx, None, None, "contrastive", 0.1, 0)
+    moved, _, _ = step(started, tx.init(started), np.stack([a, b], axis=1), jax.random.key(1))
+    for name in ("down", "to_code"):
+        for before, after in zip(
+            jax.tree.leaves(started[name]), jax.tree.leaves(moved[name]), strict=True
+        ):
+            assert np.abs(np.asarray(after) - np.asarray(before)).max() > 0, name

@@ -210,6 +210,11 @@ class TrainConfig:
     # The contrastive objective's: training places within this many positions of a batch's
     # place along the route are not its wrong places (they look alike; 0: every other is).
     contrastive_radius: int = 0
+    # Pulls the trained weights towards their starting values (L2-SP): the loss gains
+    # start_decay / 2 x the squared distance of every trainable weight from its start, so a
+    # model started at a linear solution (fae.init) moves from it only where the objective
+    # gains more than the distance costs (0: no pull).
+    start_decay: float = 0.0
     checkpoint_dir: str = "checkpoints"  # models go to <this>/<logdir name>/<pair>/<method>/
     # An epoch's checkpoint is written once this many seconds passed since the last one (and
     # always for the last epoch): a killed run loses at most about this much training, and
@@ -234,6 +239,7 @@ class TrainConfig:
             self.contrastive_radius >= 0,
             f"train.contrastive_radius={self.contrastive_radius} must be >= 0 (0: no mask)",
         )
+        _check(self.start_decay >= 0, f"train.start_decay={self.start_decay} must be >= 0")
         _check(
             self.checkpoint_every_s >= 0,
             f"train.checkpoint_every_s={self.checkpoint_every_s} must be >= 0 (0: every epoch)",

@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from flax import nnx
 from jaxtyping import Array, Float
 
-from vpr_jax.encoders import pca
+from vpr_jax.encoders import lda, pca
 from vpr_jax.encoders.conv import conv_general_dilated
 from vpr_jax.shapes import IMAGE_SHAPE
 
@@ -55,6 +55,7 @@ class CAESpec(NamedTuple):
     space_to_depth: int = 1  # f: f x f pixel blocks become f^2 channels before level 1
     standardise: bool = False  # each image to zero mean and std 1/4 before the encoder
     removed: int = 0  # as FAESpec.removed
+    linear: int = 0  # units of a linear branch beside the convolutions (CAE.linear; 0: none)
 
 
 class Removal(nnx.Variable):
@@ -181,7 +182,21 @@ def _conv(n_in: int, n_out: int, k: int, rngs: nnx.Rngs) -> nnx.Conv:
     )
 
 
+class LinearBranch(nnx.Module):
+    """The CAE's linear branch: ``linear`` ReLU units of the flattened (standardised,
+    residual) image, and their decoder, the FAE's layer beside the convolutions."""
+
+    def __init__(self, units: int, n_pixels: int, *, rngs: nnx.Rngs):
+        self.encoder = nnx.Linear(n_pixels, units, rngs=rngs)
+        self.decoder = nnx.Linear(units, n_pixels, rngs=rngs)
+
+
 class CAE(nnx.Module, _Residual):
+    """code = the conv code map, flattened, after the linear branch's units where the spec
+    has one (``linear`` > 0: a start at a linear solution, ``pca_start`` or ``lda_start``, gives the
+    CAE the linear method's score before it trains, as the FAE's start does); the
+    reconstruction's logits are the conv decoder's plus the branch's."""
+
     def __init__(self, spec: CAESpec, n_pixels: int, *, rngs: nnx.Rngs):
         if len(spec.channels) != len(spec.kernel_sizes) or not spec.channels:
             raise ValueError("CAE needs one kernel size per level and at least one level")
@@ -197,22 +212,35 @@ class CAE(nnx.Module, _Residual):
         self.up = nnx.List(
             _conv(widths[i + 1], widths[i], k, rngs) for i, k in enumerate(spec.kernel_sizes)
         )
+        self.linear = LinearBranch(spec.linear, n_pixels, rngs=rngs) if spec.linear else None
         self._init_removal(spec.removed, n_pixels)
 
-    def _code_map(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n hc wc c"]:
+    def _image(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n h w 1"]:
         x = self.residual(images)
         x = x if x.ndim == 4 else x[..., None]
-        if self.standardise:
-            x = standardise(x)
+        return standardise(x) if self.standardise else x
+
+    def inputs(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n pixels"]:
+        """What the linear branch multiplies: the encoder's image, flattened."""
+        return self._image(images).reshape(images.shape[0], -1)
+
+    def _code_map(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n hc wc c"]:
+        x = self._image(images)
         if self.block > 1:
             x = space_to_depth(x, self.block)
         for conv in self.down:
             x = max_pool_2x2(nnx.relu(conv(x)))
         return nnx.relu(self.to_code(x))
 
+    def _linear_code(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n units"]:
+        return nnx.relu(self.linear.encoder(self.inputs(images)))
+
     def encode(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n code"]:
         code = self._code_map(images)
-        return code.reshape(code.shape[0], -1)
+        code = code.reshape(code.shape[0], -1)
+        if self.linear is None:
+            return code
+        return jnp.concatenate([self._linear_code(images), code], axis=1)
 
     def __call__(self, images: Float[Array, "n h w ..."]) -> Float[Array, "n h w ..."]:
         x = nnx.relu(self.from_code(self._code_map(images)))
@@ -222,6 +250,8 @@ class CAE(nnx.Module, _Residual):
             x = nnx.relu(x) if i > 0 else x
         if self.block > 1:
             x = depth_to_space(x, self.block)
+        if self.linear is not None:
+            x = x + self.linear.decoder(self._linear_code(images)).reshape(x.shape)
         return nnx.sigmoid(x).reshape(images.shape)
 
 
@@ -332,27 +362,81 @@ def make_reconstruct(graphdef) -> Callable:
 
 
 def pca_start(graphdef, params: dict, images: Float[Array, "n h w"], whiten: bool = False) -> dict:
-    """An FAE's parameters started at the linear solution for its code size (the "linear
-    start"): PCA of the hidden layer's own inputs (``FAE.inputs`` of the training images)
-    gives the leading ``hidden // 2`` components; each becomes a unit and its negative, so
-    the ReLU code keeps both signs of every coefficient, and the bias centres the inputs at
-    their mean. The decoder starts at the encoder's transpose. A code of this start matches
-    like PCA's coefficients (within the units' clipping); training then keeps an epoch only
-    where the validation places' recall improves on it. ``whiten``: each component scaled
-    to unit variance (PCA whitening), so the few directions of largest variance, on real
-    frames the season and the light, weigh no more in the code than any other. Units
-    beyond twice the components the inputs have (an odd last unit, a small training set)
-    keep their draw."""
+    """An FAE's parameters (or a CAE's linear branch's: ``_started``) started at the linear
+    solution for its code size (the "linear start"): PCA of the layer's own inputs (its
+    ``inputs`` of the training images) gives the leading ``units // 2`` components
+    (``linear_start`` makes them units). A code of this start matches like PCA's
+    coefficients (within the units' clipping); training then keeps an epoch only where the
+    validation places' recall improves on it. ``whiten``: each component scaled to unit
+    variance (PCA whitening), so the few directions of largest variance, on real frames the
+    season and the light, weigh no more in the code than any other."""
     inputs = _model_inputs(graphdef, params, jnp.asarray(images, jnp.float32))
-    kernel = params["encoder"]["kernel"]
-    n_units = min(kernel.shape[1] // 2, pca.rank_limit(*inputs.shape))
+    n_units = min(_linear_units(params) // 2, pca.rank_limit(*inputs.shape))
     state = pca.fit_pca(inputs, n_units, seed=0)
-    components = state.components.T.astype(kernel.dtype)  # (pixels, n_units)
+    directions = state.components
     if whiten:
-        components = components / jnp.sqrt(state.explained_variance + 1e-12).astype(kernel.dtype)
-    paired = jnp.stack([components, -components], axis=2).reshape(kernel.shape[0], -1)
+        directions = directions / jnp.sqrt(state.explained_variance + 1e-12)[:, None]
+    return _started(params, directions, state.mean)
+
+
+def lda_start(
+    graphdef,
+    params: dict,
+    images_a: Float[Array, "n h w"],
+    images_b: Float[Array, "n h w"],
+    shrinkage: float = 0.1,
+) -> dict:
+    """An FAE's parameters (or a CAE's linear branch's) started at within-place whitening
+    (``vpr_jax.encoders.lda``) of its own inputs: row i of ``images_a`` and ``images_b`` is
+    one training place in two seasons; the within-place scatter is whitened inside the
+    leading ``units // 2`` principal components of both seasons' inputs, and each whitened
+    direction becomes a unit and its negative (``linear_start``). A code of this start
+    matches like the lda method's coordinates (in as many components, within the units'
+    clipping)."""
+    a = _model_inputs(graphdef, params, jnp.asarray(images_a, jnp.float32))
+    b = _model_inputs(graphdef, params, jnp.asarray(images_b, jnp.float32))
+    both = jnp.concatenate([a, b])
+    n_units = min(_linear_units(params) // 2, pca.rank_limit(*both.shape))
+    state = lda.fit_lda(pca.fit_pca(both, n_units, seed=0), a, b, n_units, shrinkage)
+    return _started(params, state.transform, state.mean)
+
+
+CONV_START_SCALE = 0.01  # a started CAE's code convolution, scaled: the linear units lead
+
+
+def _linear_units(params: dict) -> int:
+    """The units a linear start sets: the FAE's hidden layer or the CAE's linear branch."""
+    layer = params["linear"] if "linear" in params else params
+    if not layer or "encoder" not in layer:
+        raise ValueError("a linear start needs an FAE or a CAE with a linear branch")
+    return layer["encoder"]["kernel"].shape[1]
+
+
+def _started(params: dict, directions: Array, mean: Array) -> dict:
+    """``linear_start`` of the FAE's layer, or of the CAE's linear branch with its code
+    convolution scaled by ``CONV_START_SCALE``: the code starts as the linear solution's
+    (the conv part nearly zero, yet alive: a zero layer would have no gradient)."""
+    if "linear" not in params:
+        return linear_start(params, directions, mean)
+    to_code = jax.tree.map(lambda w: w * CONV_START_SCALE, params["to_code"])
+    linear = linear_start(params["linear"], directions, mean)
+    return {**params, "linear": linear, "to_code": to_code}
+
+
+def linear_start(
+    params: dict, directions: Float[Array, "m pixels"], mean: Float[Array, " pixels"]
+) -> dict:
+    """An FAE's parameters whose code is a linear map of its inputs: each row of
+    ``directions`` becomes a unit beside its negative, so the ReLU code keeps both signs of
+    every coefficient, and the bias centres the inputs at ``mean``. The decoder starts at
+    the encoder's transpose. Units beyond twice the rows (an odd last unit, a small
+    training set) keep their draw."""
+    kernel = params["encoder"]["kernel"]
+    n_units = min(kernel.shape[1] // 2, directions.shape[0])
+    columns = directions[:n_units].T.astype(kernel.dtype)  # (pixels, n_units)
+    paired = jnp.stack([columns, -columns], axis=2).reshape(kernel.shape[0], -1)
     kernel = kernel.at[:, : 2 * n_units].set(paired)
-    bias = params["encoder"]["bias"].at[: 2 * n_units].set(-(state.mean @ paired))
+    bias = params["encoder"]["bias"].at[: 2 * n_units].set(-(mean.astype(kernel.dtype) @ paired))
     decoder = {"kernel": kernel.T, "bias": jnp.zeros_like(params["decoder"]["bias"])}
     return {**params, "encoder": {"kernel": kernel, "bias": bias}, "decoder": decoder}
 

@@ -157,13 +157,17 @@ def make_train_step(
     objective: str = "reconstruct",
     temperature: float = 0.1,
     radius: int = 0,
+    start_decay: float = 0.0,
 ):
-    """The jitted step ``(params, opt_state, batch, key, places=None) -> (params, opt_state,
-    metrics)`` for one architecture, optimizer and objective (``vpr_jax.encoders.objectives``:
-    a batch of images, or of aligned pairs; ``places``: the batch's positions along the
-    route, which the contrastive objective's ``radius`` reads); metrics: ``loss`` and the
-    ``inputs`` it trained on (the batch after augmentation). Fixed arrays of the model
-    (``ae.FIXED``: a removal's mean and components) are carried through, never trained.
+    """The jitted step ``(params, opt_state, batch, key, places=None, anchor=None) ->
+    (params, opt_state, metrics)`` for one architecture, optimizer and objective
+    (``vpr_jax.encoders.objectives``: a batch of images, or of aligned pairs; ``places``: the
+    batch's positions along the route, which the contrastive objective's ``radius`` reads);
+    metrics: ``loss`` (the objective's) and the ``inputs`` it trained on (the batch after
+    augmentation). Fixed arrays of the model (``ae.FIXED``: a removal's mean and
+    components) are carried through, never trained. With ``start_decay`` > 0 the gradient
+    also pulls the trainable weights towards ``anchor`` (their starting values):
+    ``start_decay / 2 x ||params - anchor||^2`` (``start_penalty``).
 
     With a ``mesh`` the batch is split across its devices (data parallel): parameters and
     optimizer state are replicated and XLA all-reduces the gradients. Augmentation draws
@@ -171,18 +175,24 @@ def make_train_step(
     """
     batch_sharding = None if mesh is None else NamedSharding(mesh, P(AXIS))
 
-    def loss_fn(trainable, fixed, batch, places):
+    def loss_fn(trainable, fixed, batch, places, anchor):
         params = {**trainable, **fixed}
-        return objectives.loss(objective, graphdef, params, batch, temperature, places, radius)
+        loss = objectives.loss(objective, graphdef, params, batch, temperature, places, radius)
+        if not start_decay:
+            return loss, loss
+        return loss + start_decay * start_penalty(trainable, anchor), loss
 
     @jax.jit
-    def train_step(params, opt_state, batch: Float[Array, "b ..."], key: jax.Array, places=None):
+    def train_step(
+        params, opt_state, batch: Float[Array, "b ..."], key: jax.Array, places=None, anchor=None
+    ):
         if batch_sharding is not None:
             batch = jax.lax.with_sharding_constraint(batch, batch_sharding)
         if augment is not None:
             batch = objectives.augment(key, batch, augment, objective)
         trainable, fixed = ae.split_fixed(params)
-        loss, grads = jax.value_and_grad(loss_fn)(trainable, fixed, batch, places)
+        grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
+        (_, loss), grads = grad_fn(trainable, fixed, batch, places, anchor)
         updates, opt_state = tx.update(grads, opt_state, trainable)
         params = {**optax.apply_updates(trainable, updates), **fixed}
         # The augmented batch stays on the device unless the caller fetches it (TensorBoard
@@ -190,6 +200,12 @@ def make_train_step(
         return params, opt_state, {"loss": loss, "inputs": batch}
 
     return train_step
+
+
+def start_penalty(trainable: dict, anchor: dict) -> Float[Array, ""]:
+    """Half the squared distance of the trainable weights from ``anchor`` (their start)."""
+    squares = jax.tree.map(lambda p, a: jnp.sum((p - a) ** 2), trainable, anchor)
+    return 0.5 * sum(jax.tree.leaves(squares))
 
 
 @functools.partial(jax.jit, static_argnums=3)
@@ -257,6 +273,7 @@ class Trainer(NamedTuple):
     eval_loss: Callable  # (params, examples) -> the objective's mean loss
     reconstruct: Callable  # (params, images) -> images
     settings: TrainConfig
+    anchor: dict  # the starting trainable weights that train.start_decay pulls towards
     batch_size: int  # examples per step: images, or places for cross_season
     steps_per_epoch: int  # the tail that fills no batch is dropped: one compiled shape
 
@@ -288,13 +305,17 @@ def make_trainer(
     batch_size = min(per_step, n_train)
     augment = AugmentConfig() if settings.augment else None
     temperature, radius = settings.temperature, settings.contrastive_radius
+    step = make_train_step(
+        graphdef, tx, augment, mesh, objective, temperature, radius, settings.start_decay
+    )
     trainer = Trainer(
         graphdef=graphdef,
         objective=objective,
-        train_step=make_train_step(graphdef, tx, augment, mesh, objective, temperature, radius),
+        train_step=step,
         eval_loss=make_eval_loss(graphdef, batch_size, objective, temperature, radius),
         reconstruct=ae.make_reconstruct(graphdef),
         settings=settings,
+        anchor=ae.split_fixed(params)[0],
         batch_size=batch_size,
         steps_per_epoch=n_train // batch_size,
     )
@@ -376,7 +397,12 @@ def train_epoch(
         for s in range(trainer.steps_per_epoch):
             batch, places = take_batch(train_dev, order, s, trainer.batch_size)
             params, opt_state, metrics = trainer.train_step(
-                params, opt_state, batch, jax.random.fold_in(epoch_key, s + 1), places
+                params,
+                opt_state,
+                batch,
+                jax.random.fold_in(epoch_key, s + 1),
+                places,
+                trainer.anchor,
             )
             losses.append(metrics["loss"])  # on the device until the epoch ends: no waits
             if epoch == 1 and s == 0 and trainer.settings.augment:

@@ -14,6 +14,7 @@ same initial weights (the key of the seed and the method's name).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import zlib
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -38,10 +39,27 @@ from vpr_jax.files import lock_folder
 from vpr_jax.methods.contract import Method, PCAFit, Report, Training, TrainingSet, Validation
 
 INPUTS = ("pixels", "residual")  # what the model sees: <method>.input
+# How the weights start (<method>.init): drawn, or at a linear solution of the model's own
+# inputs (``ae.pca_start``, ``ae.lda_start``): each direction a unit beside its negative.
+INITS = ("random", "pca", "whitened_pca", "lda")
+LDA_SHRINKAGE = 0.1  # init=lda regularises as the lda method does by default
 
 
-def check_common(group: str, objective: tuple[str, ...], input: str, epochs) -> None:
-    """The settings both auto-encoders have: objectives, input, epochs."""
+def linear_start(init: str, train: np.ndarray, aligned) -> Start | None:
+    """The start ``init`` names, from the training images (both seasons) or, for ``lda``,
+    their aligned places; None for drawn weights."""
+    if init == "lda":
+        a, b = aligned
+        return functools.partial(ae.lda_start, images_a=a, images_b=b, shrinkage=LDA_SHRINKAGE)
+    if init in ("pca", "whitened_pca"):
+        return functools.partial(ae.pca_start, images=train, whiten=init == "whitened_pca")
+    return None
+
+
+def check_common(
+    group: str, objective: tuple[str, ...], input: str, epochs, init: str = "random"
+) -> None:
+    """The settings both auto-encoders have: objectives, input, epochs, start."""
     chosen = list(objective)
     unknown = [o for o in chosen if o not in objectives.OBJECTIVES]
     checks = (
@@ -57,6 +75,7 @@ def check_common(group: str, objective: tuple[str, ...], input: str, epochs) -> 
         ),
         (input in INPUTS, f"{group}.input={input} is unknown: use {' or '.join(INPUTS)}"),
         (epochs is None or epochs >= 1, f"{group}.epochs={epochs} must be >= 1"),
+        (init in INITS, f"{group}.init={init} is unknown: use {', '.join(INITS)}"),
     )
     for ok, message in checks:
         if not ok:
@@ -65,9 +84,19 @@ def check_common(group: str, objective: tuple[str, ...], input: str, epochs) -> 
 
 def without_aligned_places(group: str, settings: Any, training: TrainingSet, log) -> Any:
     """On data without aligned training places the paired objectives give way (the seed's
-    ``reconstruct`` stays); asked for by name, they are refused."""
+    ``reconstruct`` stays) and the lda start gives way to the whitened PCA start (the
+    nearest that needs no alignment, with a note); asked for by name, they are refused."""
     if training.aligned:
         return settings
+    if settings.init == "lda":
+        if "init" in training.asked:
+            raise UserError(
+                f"{group}.init=lda needs aligned training places, which the data do not have: "
+                "set data.train_source and data.train_root to an aligned route to learn from, "
+                f"or use {group}.init=whitened_pca"
+            )
+        log(f"note: {group}.init=lda needs aligned training places: {group} starts at whitened_pca")
+        settings = dataclasses.replace(settings, init="whitened_pca")
     paired = [o for o in settings.objective if o in objectives.PAIRED]
     if paired and "objective" in training.asked:
         raise UserError(
@@ -246,9 +275,10 @@ def _train(
 
 
 def autoencoder_method(
-    name: str, model_of: Callable[[np.ndarray, dict], Model], settings: type, report: Callable
+    name: str, model_of: Callable[[np.ndarray, Any, dict], Model], settings: type, report: Callable
 ) -> Method:
-    """An auto-encoder as a method: ``model_of(train, settings)`` its architecture and start;
+    """An auto-encoder as a method: ``model_of(train, aligned, settings)`` its architecture
+    and start;
     trained from the runner's validation places, training folder, devices and (with a
     residual input) the pair's PCA fit; once per seed and per objective, each objective its
     own rows."""
@@ -265,7 +295,7 @@ def autoencoder_method(
         **values,
     ) -> ae.ModelState:
         return fit_model(
-            Fit(name=name, model=model_of(train, values), values=values),
+            Fit(name=name, model=model_of(train, aligned, values), values=values),
             train,
             key,
             validation=validation,

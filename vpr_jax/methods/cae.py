@@ -48,9 +48,17 @@ class Settings:
     epochs: int | None = None  # overrides train.epochs for the CAE
     objective: tuple[str, ...] = ("reconstruct", "cross_season")  # as fae.objective
     input: str = "pixels"  # pixels | residual: as fae.input
+    # random: the convolutions alone, drawn; pca, whitened_pca or lda: a linear branch of
+    # linear_units units beside them, started as fae.init starts the FAE, and the code
+    # convolution scaled down (ae.CONV_START_SCALE), so the CAE starts at the linear
+    # solution's score and its convolutions add what validation recall rewards.
+    init: str = "random"
+    linear_units: int = 512  # the linear branch's units (code values), with an init
 
     def __post_init__(self):
-        autoencoder.check_common("cae", self.objective, self.input, self.epochs)
+        autoencoder.check_common("cae", self.objective, self.input, self.epochs, self.init)
+        if self.linear_units < 2:
+            raise UserError(f"cae.linear_units={self.linear_units} must be >= 2")
         if self.model not in MODELS:
             raise UserError(f"cae.model={self.model} is unknown: use {' or '.join(MODELS)}")
         a = architecture(self)
@@ -79,8 +87,9 @@ def architecture(settings) -> dict:
     }
 
 
-def _model(train, s: dict) -> autoencoder.Model:
-    """The named architecture with the parts set overriding it."""
+def _model(train, aligned, s: dict) -> autoencoder.Model:
+    """The named architecture with the parts set overriding it; with an ``init``, a linear
+    branch started there."""
     a = architecture(Settings(**{**s, "objective": (s["objective"],)}))
     return autoencoder.Model(
         spec=lambda removed: ae.CAESpec(
@@ -90,8 +99,9 @@ def _model(train, s: dict) -> autoencoder.Model:
             space_to_depth=a["space_to_depth"],
             standardise=s["standardise"],
             removed=removed,
+            linear=s["linear_units"] if s["init"] != "random" else 0,
         ),
-        start=None,
+        start=autoencoder.linear_start(s["init"], train, aligned),
     )
 
 

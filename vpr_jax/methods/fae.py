@@ -5,7 +5,6 @@ describes, once per objective."""
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import numpy as np
 
@@ -13,8 +12,6 @@ from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.errors import UserError
 from vpr_jax.methods import autoencoder
 from vpr_jax.methods.contract import Report
-
-INITS = ("random", "pca", "whitened_pca")  # how the weights start: fae.init
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,7 +30,9 @@ class Settings:
     # random: drawn weights; pca: the linear start, the hidden layer at the PCA solution of
     # its own inputs for hidden // 2 components, each unit beside its negative
     # (vpr_jax.encoders.autoencoders.pca_start): training keeps only what beats it;
-    # whitened_pca: the same with every component scaled to unit variance.
+    # whitened_pca: the same with every component scaled to unit variance; lda: within-place
+    # whitening of its inputs in hidden // 2 components (the lda method's descriptor; needs
+    # aligned training places).
     init: str = "random"
     # Subtracted from every pixel before the hidden layer; 0 is the seed's layer, on which
     # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
@@ -41,9 +40,8 @@ class Settings:
     standardise: bool = True  # each image to zero mean, std 1/4 instead (input_centre unused)
 
     def __post_init__(self):
-        autoencoder.check_common("fae", self.objective, self.input, self.epochs)
+        autoencoder.check_common("fae", self.objective, self.input, self.epochs, self.init)
         checks = (
-            (self.init in INITS, f"fae.init={self.init} is unknown: use {', '.join(INITS)}"),
             (self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1"),
             (
                 0 <= self.input_centre <= 1,
@@ -56,11 +54,9 @@ class Settings:
                 raise UserError(message)
 
 
-def _model(train, s: dict) -> autoencoder.Model:
-    """One hidden layer of ``hidden`` units; the linear start, where asked, from ``train``."""
-    start = None
-    if s["init"] != "random":
-        start = functools.partial(ae.pca_start, images=train, whiten=s["init"] == "whitened_pca")
+def _model(train, aligned, s: dict) -> autoencoder.Model:
+    """One hidden layer of ``hidden`` units; the linear start, where asked, from ``train``
+    (``lda``: its aligned places)."""
     return autoencoder.Model(
         spec=lambda removed: ae.FAESpec(
             hidden=s["hidden"],
@@ -68,7 +64,7 @@ def _model(train, s: dict) -> autoencoder.Model:
             standardise=s["standardise"],
             removed=removed,
         ),
-        start=start,
+        start=autoencoder.linear_start(s["init"], train, aligned),
     )
 
 

@@ -1,0 +1,106 @@
+"""Lay out a folder of frame-aligned seasons as two stretches that never share a place: a
+**tuning route** (the first stretch, aligned, in the ``folders`` layout) to learn and choose
+options on, and a **reporting benchmark** (the rest, in VPR-Bench's layout) to report on.
+
+    python benchmarks/halves.py DATA_ROOT OUT [--seasons summer,winter] [--split 894]
+        [--query-step 2] [--tolerance 1]
+
+DATA_ROOT holds one folder per season with the frame number in each file name
+(``data.source=folders``, e.g. ``../shared/data/nordland_dev``). Frames 1..SPLIT go to
+``OUT/tuning/<season>/`` as they are; frames SPLIT+1.. become ``OUT/reporting/``: every
+frame of the first season in ``ref/``, every ``--query-step``-th frame of the second in
+``query/``, and ``ground_truth_new.npy`` naming the references within ``--tolerance``
+frames of each query (VPR-Bench's layout, as ``data.source=vpr_bench`` reads it). Then a
+model trained on an aligned route and applied to a benchmark that has none:
+
+    python -m experiments.sweep preset=real data.source=vpr_bench data.root=OUT/reporting \\
+      data.train_source=folders data.train_root=OUT/tuning "data.seasons=[summer,winter]" \\
+      split.n_train=600 split.n_test=225 split.gap=10 tolerance=1
+
+(the route's split keys choose its 530 training and 60 validation places per season; its
+test places are not used). Files are copied, so OUT is self-contained; an existing OUT is
+refused rather than overwritten.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+
+
+def frames(folder: Path) -> dict[int, Path]:
+    """Frame number (the last number in a file name) -> image file."""
+    found = {}
+    for path in sorted(folder.iterdir()):
+        numbers = re.findall(r"\d+", path.stem)
+        if path.suffix.lower() in IMAGE_SUFFIXES and numbers:
+            found[int(numbers[-1])] = path
+    if not found:
+        raise SystemExit(f"{folder} holds no numbered images")
+    return found
+
+
+def lay_out(root: Path, out: Path, seasons: list[str], split: int, step: int, tol: int) -> str:
+    """Write both layouts; returns a one-line summary."""
+    by_season = {s: frames(root / s) for s in seasons}
+    common = sorted(set.intersection(*(set(f) for f in by_season.values())))
+    tuning = [i for i in common if i <= split]
+    reporting = [i for i in common if i > split]
+    if not tuning or not reporting:
+        span = f"{common[0]}..{common[-1]}" if common else "none in common"
+        raise SystemExit(f"--split {split} leaves a stretch empty: frames {span}")
+    for season, found in by_season.items():
+        target = out / "tuning" / season
+        target.mkdir(parents=True)
+        for i in tuning:
+            shutil.copy2(found[i], target / found[i].name)
+    db_season, query_season = seasons
+    bench = out / "reporting"
+    (bench / "ref").mkdir(parents=True)
+    (bench / "query").mkdir()
+    queries = reporting[::step]
+    for i in reporting:
+        shutil.copy2(by_season[db_season][i], bench / "ref" / f"{i:05d}.png")
+    for i in queries:
+        shutil.copy2(by_season[query_season][i], bench / "query" / f"{i:05d}.png")
+    refs = np.asarray(reporting)
+    table = np.empty((len(queries), 2), dtype=object)
+    for n, i in enumerate(queries):
+        table[n, 0] = n
+        table[n, 1] = np.flatnonzero(np.abs(refs - i) <= tol).tolist()
+    np.save(bench / "ground_truth_new.npy", table, allow_pickle=True)
+    return (
+        f"tuning route: frames {tuning[0]}..{tuning[-1]} of {', '.join(seasons)} in "
+        f"{out / 'tuning'}; reporting benchmark: {len(reporting)} {db_season} references "
+        f"{reporting[0]}..{reporting[-1]}, {len(queries)} {query_season} queries (every "
+        f"{step}), correct within +-{tol} frames, in {bench}"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("root", type=Path, help="one folder per season, numbered frames")
+    parser.add_argument("out", type=Path, help="a new folder for both layouts")
+    parser.add_argument("--seasons", default="summer,winter", help="database,query")
+    parser.add_argument("--split", type=int, default=894, help="last frame of the tuning route")
+    parser.add_argument("--query-step", type=int, default=2, help="every n-th query frame")
+    parser.add_argument("--tolerance", type=int, default=1, help="correct within +-n frames")
+    args = parser.parse_args(argv)
+    seasons = [s.strip() for s in args.seasons.split(",")]
+    if len(seasons) != 2:
+        raise SystemExit(f"--seasons={args.seasons}: name two seasons, database first")
+    if args.out.exists():
+        raise SystemExit(f"{args.out} exists: name a new folder (nothing is overwritten)")
+    print(lay_out(args.root, args.out, seasons, args.split, args.query_step, args.tolerance))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
