@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from vpr_jax.data.augment import (
+    PLACE,
     AugmentConfig,
     augment_batch,
     augment_one,
@@ -149,6 +150,21 @@ def test_default_config_is_shift_then_optional_mirror():
     assert all(f is not None for f in found)
     assert all(abs(dy) <= 0.2 * H and abs(dx) <= 0.2 * W for _, dy, dx in found)
     assert {flip for flip, _, _ in found} == {False, True}
+
+
+def test_the_place_keeping_augmentation_never_flips_and_shifts_a_few_pixels():
+    """train.augment=place: every output is an unflipped nearest-edge shift of at most
+    3 pixels across and 1 down (0.05 of 64 and of 32), and both bounds are reached."""
+    from vpr_jax.encoders.train import augment_config
+
+    assert augment_config("place") is PLACE and augment_config(True) == AugmentConfig()
+    assert augment_config(False) is None
+    image = gradient()
+    out = np.asarray(jit_augment(jax.random.PRNGKey(6), np.stack([image] * 200), PLACE))
+    found = [identify(o) for o in out]
+    assert all(f is not None and not f[0] for f in found), "an unflipped shift each"
+    dys, dxs = (np.array([f[i] for f in found]) for i in (1, 2))
+    assert np.abs(dys).max() == 1 and np.abs(dxs).max() == 3
 
 
 @pytest.mark.parametrize("channel", [False, True])

@@ -160,7 +160,7 @@ def test_an_objective_list_is_one_value_or_many():
         (["fae.input=edges"], ["fae.input=edges", "pixels or residual"]),
         (["cae.input=edges"], ["cae.input=edges", "pixels or residual"]),
         (["fae.init=xavier"], ["fae.init=xavier", "random, pca, whitened_pca"]),
-        (["train.augment=maybe"], ["train.augment=maybe", "true, false or auto"]),
+        (["train.augment=maybe"], ["train.augment=maybe", "true, false, auto or place"]),
         (["train.temperature=0"], ["train.temperature=0", "> 0"]),
     ],
 )

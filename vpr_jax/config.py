@@ -204,7 +204,8 @@ class TrainConfig:
     optimizer: str = "adam"  # adam | adamw | sgd (optax)
     patience: int = 3  # epochs without a better validation recall@1 before stopping
     # true: the seed's Table 2 (horizontal flip, width/height shift 0.2); false: none; auto:
-    # train both and keep the better on the validation places' recall@1.
+    # train both and keep the better on the validation places' recall@1; place: no flip,
+    # shifts of 0.05 (augmentation that keeps the place: vpr_jax.data.augment.PLACE).
     augment: Any = True
     temperature: float = 0.1  # the contrastive objective's: cosine similarities / this
     # The contrastive objective's: training places within this many positions of a batch's
@@ -212,7 +213,7 @@ class TrainConfig:
     contrastive_radius: int = 0
     # Pulls the trained weights towards their starting values (L2-SP): the loss gains
     # start_decay / 2 x the squared distance of every trainable weight from its start, so a
-    # model started at a linear solution (fae.init) moves from it only where the objective
+    # model started at a linear solution (fae.init, cae.init) moves from it only where the objective
     # gains more than the distance costs (0: no pull).
     start_decay: float = 0.0
     checkpoint_dir: str = "checkpoints"  # models go to <this>/<logdir name>/<pair>/<method>/
@@ -231,8 +232,8 @@ class TrainConfig:
         )
         _check(self.patience >= 1, f"train.patience={self.patience} must be >= 1")
         _check(
-            any(self.augment is a for a in (True, False)) or self.augment == "auto",
-            f"train.augment={self.augment} is not true, false or auto",
+            any(self.augment is a for a in (True, False)) or self.augment in ("auto", "place"),
+            f"train.augment={self.augment} is not true, false, auto or place",
         )
         _check(self.temperature > 0, f"train.temperature={self.temperature} must be > 0")
         _check(

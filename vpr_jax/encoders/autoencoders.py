@@ -193,8 +193,8 @@ class LinearBranch(nnx.Module):
 
 class CAE(nnx.Module, _Residual):
     """code = the conv code map, flattened, after the linear branch's units where the spec
-    has one (``linear`` > 0: a start at a linear solution, ``pca_start`` or ``lda_start``, gives the
-    CAE the linear method's score before it trains, as the FAE's start does); the
+    has one (``linear`` > 0: started at a linear solution, ``pca_start`` or ``lda_start``,
+    the CAE scores as the linear method before it trains, as the FAE does); the
     reconstruction's logits are the conv decoder's plus the branch's."""
 
     def __init__(self, spec: CAESpec, n_pixels: int, *, rngs: nnx.Rngs):

@@ -40,7 +40,7 @@ from jaxtyping import Array, Float
 
 from vpr_jax import config, sharding
 from vpr_jax.config import TrainConfig, plain
-from vpr_jax.data.augment import AugmentConfig
+from vpr_jax.data.augment import PLACE, TABLE2, AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import checkpoints, objectives
 from vpr_jax.errors import UserError
@@ -202,6 +202,14 @@ def make_train_step(
     return train_step
 
 
+def augment_config(augment) -> AugmentConfig | None:
+    """``train.augment``'s augmentation: the seed's (true), the place-keeping one (place:
+    ``PLACE``) or none (false)."""
+    if augment == "place":
+        return PLACE
+    return TABLE2 if augment is True else None
+
+
 def start_penalty(trainable: dict, anchor: dict) -> Float[Array, ""]:
     """Half the squared distance of the trainable weights from ``anchor`` (their start)."""
     squares = jax.tree.map(lambda p, a: jnp.sum((p - a) ** 2), trainable, anchor)
@@ -303,8 +311,10 @@ def make_trainer(
     tx = make_optimizer(settings)
     per_step = max(1, settings.batch_size // objectives.examples_per_image(objective))
     batch_size = min(per_step, n_train)
-    augment = AugmentConfig() if settings.augment else None
+    augment = augment_config(settings.augment)
     temperature, radius = settings.temperature, settings.contrastive_radius
+    anchor = ae.split_fixed(params)[0]  # where the steps run, as the replicated params
+    anchor = anchor if mesh is None else sharding.replicate(anchor, mesh)
     step = make_train_step(
         graphdef, tx, augment, mesh, objective, temperature, radius, settings.start_decay
     )
@@ -315,7 +325,7 @@ def make_trainer(
         eval_loss=make_eval_loss(graphdef, batch_size, objective, temperature, radius),
         reconstruct=ae.make_reconstruct(graphdef),
         settings=settings,
-        anchor=ae.split_fixed(params)[0],
+        anchor=anchor,
         batch_size=batch_size,
         steps_per_epoch=n_train // batch_size,
     )
