@@ -278,10 +278,9 @@ def autoencoder_method(
     name: str, model_of: Callable[[np.ndarray, Any, dict], Model], settings: type, report: Callable
 ) -> Method:
     """An auto-encoder as a method: ``model_of(train, aligned, settings)`` its architecture
-    and start;
-    trained from the runner's validation places, training folder, devices and (with a
-    residual input) the pair's PCA fit; once per seed and per objective, each objective its
-    own rows."""
+    and start; trained from the runner's validation places, training folder, devices and
+    (with a residual input) the pair's PCA fit; once per seed and per objective, each
+    objective its own rows."""
 
     def fit(
         train,
