@@ -25,23 +25,25 @@ refused rather than overwritten.
 from __future__ import annotations
 
 import argparse
-import re
 import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
 
-IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from vpr_jax.data.frames import frame_id_from_name  # noqa: E402
+from vpr_jax.data.images import list_images  # noqa: E402
+from vpr_jax.errors import UserError  # noqa: E402
 
 
 def frames(folder: Path) -> dict[int, Path]:
-    """Frame number (the last number in a file name) -> image file."""
-    found = {}
-    for path in sorted(folder.iterdir()):
-        numbers = re.findall(r"\d+", path.stem)
-        if path.suffix.lower() in IMAGE_SUFFIXES and numbers:
-            found[int(numbers[-1])] = path
+    """Frame number (the last number in a file name, as data.source=folders reads it) ->
+    image file."""
+    found = {frame_id_from_name(p.name): p for p in list_images(folder, "numbered frames")}
+    found.pop(None, None)
     if not found:
         raise SystemExit(f"{folder} holds no numbered images")
     return found
@@ -98,7 +100,10 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"--seasons={args.seasons}: name two seasons, database first")
     if args.out.exists():
         raise SystemExit(f"{args.out} exists: name a new folder (nothing is overwritten)")
-    print(lay_out(args.root, args.out, seasons, args.split, args.query_step, args.tolerance))
+    try:
+        print(lay_out(args.root, args.out, seasons, args.split, args.query_step, args.tolerance))
+    except (UserError, FileNotFoundError) as err:
+        raise SystemExit(str(err)) from None
     return 0
 
 

@@ -281,7 +281,7 @@ class Trainer(NamedTuple):
     eval_loss: Callable  # (params, examples) -> the objective's mean loss
     reconstruct: Callable  # (params, images) -> images
     settings: TrainConfig
-    anchor: dict  # the starting trainable weights that train.start_decay pulls towards
+    anchor: dict | None  # the starting trainable weights train.start_decay pulls towards
     batch_size: int  # examples per step: images, or places for cross_season
     steps_per_epoch: int  # the tail that fills no batch is dropped: one compiled shape
 
@@ -313,8 +313,10 @@ def make_trainer(
     batch_size = min(per_step, n_train)
     augment = augment_config(settings.augment)
     temperature, radius = settings.temperature, settings.contrastive_radius
-    anchor = ae.split_fixed(params)[0]  # where the steps run, as the replicated params
-    anchor = anchor if mesh is None else sharding.replicate(anchor, mesh)
+    anchor = None  # train.start_decay's: the starting weights, where the steps run
+    if settings.start_decay:
+        anchor = ae.split_fixed(params)[0]
+        anchor = anchor if mesh is None else sharding.replicate(anchor, mesh)
     step = make_train_step(
         graphdef, tx, augment, mesh, objective, temperature, radius, settings.start_decay
     )

@@ -45,7 +45,7 @@ INITS = ("random", "pca", "whitened_pca", "lda")
 LDA_SHRINKAGE = 0.1  # init=lda regularises as the lda method does by default
 
 
-def linear_start(init: str, train: np.ndarray, aligned) -> Start | None:
+def start_of(init: str, train: np.ndarray, aligned) -> Start | None:
     """The start ``init`` names, from the training images (both seasons) or, for ``lda``,
     their aligned places; None for drawn weights."""
     if init == "lda":

@@ -101,7 +101,7 @@ def _model(train, aligned, s: dict) -> autoencoder.Model:
             removed=removed,
             linear=s["linear_units"] if s["init"] != "random" else 0,
         ),
-        start=autoencoder.linear_start(s["init"], train, aligned),
+        start=autoencoder.start_of(s["init"], train, aligned),
     )
 
 

@@ -64,7 +64,7 @@ def _model(train, aligned, s: dict) -> autoencoder.Model:
             standardise=s["standardise"],
             removed=removed,
         ),
-        start=autoencoder.linear_start(s["init"], train, aligned),
+        start=autoencoder.start_of(s["init"], train, aligned),
     )
 
 
