@@ -30,6 +30,7 @@ from vpr_jax.encoders.saved import save_fitted, suite_version
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.method_table import MethodInfo
 from vpr_jax.methods.contract import (
+    NotScored,
     PCAFit,
     Report,
     Training,
@@ -74,13 +75,22 @@ def _pca_fit(fit: Fit, run: PairRun) -> PCAFit | None:
             return None
     declared, settings = run.plan.shared_fit
     if "pca_fit" not in run.shared:
+        asked = run.plan.pca_components
         state, seconds = timed(
-            lambda x: declared.fit(
-                x, run.plan.pca_components, settings, run.mesh, run.plan.cfg.seed
-            ),
+            lambda x: declared.fit(x, asked, settings, run.mesh, run.plan.cfg.seed),
             run.data.train,
         )
-        run.shared["pca_fit"] = PCAFit(state, seconds, run.plan.cfg.removed_pcs)
+        held = len(state.components)
+        if held < asked:
+            run.log(
+                f"note: {run.data.name}: the PCA fit holds {held} of the {asked} components "
+                f"asked: {len(run.data.train)} training images of numerical rank {held} "
+                "(repeated or constant frames); counts beyond it are left out "
+                "(docs/methods.md#pca-on-any-training-set)"
+            )
+        run.shared["pca_fit"] = PCAFit(
+            state=state, seconds=seconds, removed_pcs=run.plan.cfg.removed_pcs, asked=asked
+        )
     return run.shared["pca_fit"]
 
 
@@ -172,7 +182,7 @@ def run_fit(fit: Fit, run: PairRun) -> tuple[Any, float, float]:
     key = jax.random.key(fit.seed)
     try:
         state, seconds = timed(lambda: method.fit(data.train, aligned, key, **fit.values, **given))
-    except UserError:
+    except (UserError, NotScored):
         raise
     except Exception as err:
         if not info.plugin:
@@ -213,28 +223,55 @@ def save_state(fit: Fit, state: Any, run: PairRun) -> None:
     save_fitted(run.fitted_dir / fit.folder, state, description)
 
 
+def _left_out(fit: Fit, parts, err: NotScored, run: PairRun) -> None:
+    """One note for cells this pair's training set cannot serve (``NotScored``)."""
+    runs = ", ".join(p.run for p in parts)
+    run.log(f"note: {run.data.name} {runs}: not scored: {err}")
+
+
+def _scored_parts(fit: Fit, parts, state, run: PairRun) -> tuple[tuple, list[Report]]:
+    """The parts the fitted state can serve, with their reports; a note for the others."""
+    kept, reports = [], []
+    for part in parts:
+        try:
+            reports.append(report_of(fit.method.method, state, {**fit.values, **part.values}))
+        except NotScored as err:
+            _left_out(fit, (part,), err, run)
+            continue
+        kept.append(part)
+    return tuple(kept), reports
+
+
 def describe_fit(fit: Fit, parts: tuple[Served, ...], run: PairRun) -> Iterator[Descriptors]:
     """Fit (timed), keep the state, then the descriptors of ``parts`` (cells of the fit):
-    one encoding for all of them when their served values are feature suffixes."""
-    state, *seconds = run_fit(fit, run)
+    one encoding for all of them when their served values are feature suffixes. Cells the
+    training set cannot serve (``NotScored``) are left out with a note."""
+    try:
+        state, *seconds = run_fit(fit, run)
+    except NotScored as err:
+        _left_out(fit, parts, err, run)
+        return
     save_state(fit, state, run)
+    parts, reports = _scored_parts(fit, parts, state, run)
+    if not parts:
+        return
     suffix = suffix_of(fit.method.method, fit.settings)
     if suffix:
         starts = tuple(int(p.values[suffix]) for p in parts)
         base = {**parts[0].values, suffix: 0}  # the whole descriptors: every suffix of them
-        yield _describe(fit, parts, starts, _encoder(fit, state, base), state, seconds, run)
+        encode = _encoder(fit, state, base)
+        yield _describe(fit, parts, reports, starts, encode, seconds, run)
         return
-    for part in parts:
+    for part, report in zip(parts, reports, strict=True):
         encode = _encoder(fit, state, part.values)
-        yield _describe(fit, (part,), (0,), encode, state, seconds, run)
+        yield _describe(fit, (part,), [report], (0,), encode, seconds, run)
 
 
-def _describe(fit, parts, starts, encode, state, seconds, run: PairRun) -> Descriptors:
-    """Encode the pair with ``encode``; the report and the degenerate-descriptor check.
-    fit_seconds: the fit's (its own count where it keeps one: training over every session)
-    and the shared PCA fit's it used."""
+def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Descriptors:
+    """Encode the pair with ``encode``; the degenerate-descriptor check. fit_seconds: the
+    fit's (its own count where it keeps one: training over every session) and the shared
+    PCA fit's it used."""
     data, cfg = run.data, run.plan.cfg
-    reports = [report_of(fit.method.method, state, {**fit.values, **p.values}) for p in parts]
     first: Report = reports[0]
     db, query, ms = encode_pair(encode, data)
     warning = "; ".join(w for w in (first.warning, degenerate_warning(db, query)) if w) or None

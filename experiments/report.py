@@ -9,6 +9,7 @@ import functools
 import io
 import math
 import shutil
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
@@ -17,6 +18,7 @@ import numpy as np
 from experiments.cells import INCOMPLETE, block_length, run_name
 from vpr_jax.config import SweepConfig
 from vpr_jax.encoders.saved import FIT_JSON, describe_encoder, read_description
+from vpr_jax.errors import first_line
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
 from vpr_jax.evaluation.metrics import SCALAR_NAMES, pr_curve
 from vpr_jax.files import atomic_write_text, replace_folder
@@ -44,34 +46,73 @@ from vpr_jax.outputs.results import (
     sweeps_removed_pcs,
 )
 from vpr_jax.outputs.tb import CompareSeries, SummaryCell, write_method_run, write_pair_summary
+from vpr_jax.progress import RunLog
 
 SUMMARY = "summary"  # logdir/summary/<pair>: each pair's selected cells in one run
 COMPARE = "compare"  # logdir/compare/<method>: a run per method, its tags per pair
 Curves = Callable[[str], dict[str, np.ndarray]]  # run -> its curve.npz arrays
 
 
-def write_report(logdir: Path, cfg: SweepConfig) -> None:
-    """results.md, the figures and the summary runs, from every row of results.csv."""
+def report_steps(logdir: Path, cfg: SweepConfig, rows: list[ResultRow]) -> dict[str, Callable]:
+    """What a report writes, by the name a warning gives it, in order: the tables first,
+    so a failing figure cannot cost them."""
+    curve = curve_reader(logdir)
+    figures = logdir / "figures"
+
+    def figure(draw: Callable, name: str) -> Callable:
+        def step():
+            figures.mkdir(exist_ok=True)
+            draw(figures / name)
+
+        return step
+
+    steps = {
+        "results.md": lambda: atomic_write_text(
+            logdir / "results.md", markdown_table(rows, *differences_to_baseline(rows, curve, cfg))
+        ),
+        ENCODERS_CSV: lambda: atomic_write_text(
+            logdir / ENCODERS_CSV, encoders_csv(describe_encoders(fitted_root(cfg, logdir), rows))
+        ),
+        f"the {SUMMARY} runs": lambda: write_tb_summaries(logdir, rows, curve, cfg),
+        f"the {COMPARE} runs": lambda: write_tb_compare(logdir, rows, curve, cfg),
+        "figures/pr_curves.png": figure(
+            lambda path: pr_curves_figure(
+                rows, lambda mine: pooled_curve(mine, curve, cfg.pr_convention), path
+            ),
+            "pr_curves.png",
+        ),
+        "figures/correct_matches.png": figure(
+            lambda path: correct_matches_figure(rows, path), "correct_matches.png"
+        ),
+    }
+    if len({r.ds for r in rows}) > 1:
+        steps["figures/recall_vs_ds.png"] = figure(
+            lambda path: recall_vs_ds_figure(rows, path), "recall_vs_ds.png"
+        )
+    return steps
+
+
+def write_report(logdir: Path, cfg: SweepConfig, log: RunLog) -> list[str]:
+    """results.md, encoders.csv, the summary and compare runs and the figures, from every
+    row of results.csv. A step that fails is skipped with one warning naming it (its
+    traceback in sweep.log): the cells are fine, the other outputs are written, and the
+    next run of the same command tries it again. Returns the names of the failed steps."""
     rows = read_results(logdir / "results.csv")
     if not rows:
-        return
-    curve = curve_reader(logdir)
-    atomic_write_text(
-        logdir / "results.md",
-        markdown_table(rows, *differences_to_baseline(rows, curve, cfg)),
-    )
-    figures = logdir / "figures"
-    figures.mkdir(exist_ok=True)
-    write_tb_summaries(logdir, rows, curve, cfg)
-    write_tb_compare(logdir, rows, curve, cfg)
-    pr_curves_figure(
-        rows, lambda mine: pooled_curve(mine, curve, cfg.pr_convention), figures / "pr_curves.png"
-    )
-    correct_matches_figure(rows, figures / "correct_matches.png")
-    if len({r.ds for r in rows}) > 1:
-        recall_vs_ds_figure(rows, figures / "recall_vs_ds.png")
-    listing = describe_encoders(fitted_root(cfg, logdir), rows)
-    atomic_write_text(logdir / ENCODERS_CSV, encoders_csv(listing))
+        return []
+    failed = []
+    for name, step in report_steps(logdir, cfg, rows).items():
+        try:
+            step()
+        except Exception as err:  # a report is never worth the results it reports
+            failed.append(name)
+            log(
+                f"warning: {name} not written ({type(err).__name__}: {first_line(err)}); the "
+                "cells are kept and the rest of the report is written: rerun the same command "
+                "to try again (the traceback is in sweep.log)"
+            )
+            log.record(traceback.format_exc())
+    return failed
 
 
 def encoders_csv(listing: list[dict]) -> str:

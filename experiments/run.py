@@ -182,10 +182,11 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                 finished += 1
                 bar.advance()
                 log_cell(log, f"[{finished}/{len(cells)}]", row, warning, cfg.seed)
-    write_report(out, cfg)
+    failed = write_report(out, cfg, log)
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)  # empty once every cell moved out
     log(
-        f"done: {logdir / 'results.md'}, figures in {logdir / 'figures'}; compare the methods "
+        ("done, but not written: " + ", ".join(failed) + "; " if failed else "done: ")
+        + f"{logdir / 'results.md'}, figures in {logdir / 'figures'}; compare the methods "
         f"with: tensorboard --logdir {logdir / COMPARE} (a run per pair: --logdir "
         f"{logdir / SUMMARY}; every cell: --logdir {logdir}); take results out with: python "
         f"-m experiments.export {logdir}"

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import run_cli
+from tests.conftest import run_cli, run_here
 from tests.inputs import write_release
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
@@ -106,3 +106,53 @@ def test_constant_frames_are_dropped_when_asked(hostile_root, tmp_path):
     rows = read_results(logdir / "results.csv")
     assert len(rows) == 2 * (1 + 2)
     _assert_finite(rows)
+
+
+@pytest.fixture(scope="module")
+def station_root(tmp_path_factory):
+    """Two seasons whose training stretch holds a long station stop: 50 frames of the same
+    place in both, so the training images have far lower rank than their count."""
+    route = synthetic_route(200, ("summer", "winter"), seed=4)
+    images = {s: np.rint(im * 255).astype(np.uint8) for s, im in route.images.items()}
+    for season in images:
+        images[season][10:60] = images[season][10]
+    return write_release(tmp_path_factory.mktemp("station") / "data", images)
+
+
+def test_repeated_training_frames_give_pca_that_is_pca(station_root, tmp_path):
+    """The Gram solver (what auto picks for fewer images than pixels) on a route with a
+    station stop: PCA with no component removed scores exactly as raw pixels, and removed
+    counts beyond the training images' numerical rank are left out with a note, for PCA and
+    for ICA, instead of being scored on components that are not PCA's."""
+    logdir = tmp_path / "runs"
+    proc = run_here(
+        "data.source=nordland_images",
+        f"data.root={station_root}",
+        "data.seasons=[summer,winter]",
+        "season_pairs=summer-winter",
+        "split.n_train=100",
+        "split.gap=10",
+        "split.n_test=60",
+        "methods=[raw,pca,ica]",
+        "removed_pcs=[0,5,150]",
+        "ica.n_components=8",
+        "pca.solver=gram",
+        f"logdir={logdir}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    log = (logdir / "sweep.log").read_text()
+    assert "note: summer-winter: the PCA fit holds" in log
+    assert "pca_k150: not scored: removed_pcs=150 is beyond the" in log
+    assert "ica_k150: not scored: ica.n_components=8 with removed_pcs=150" in log
+    rows = read_results(logdir / "results.csv")
+    assert sorted((r.method, r.removed_pcs) for r in rows) == [
+        ("ica", 0),
+        ("ica", 5),
+        ("pca", 0),
+        ("pca", 5),
+        ("raw", 0),
+    ]
+    raw = next(r for r in rows if r.method == "raw")
+    pca0 = next(r for r in rows if r.method == "pca" and r.removed_pcs == 0)
+    for column in (*METRICS, "recall_at_1_ci_low", "recall_at_1_ci_high", "val_recall_at_1"):
+        assert getattr(pca0, column) == pytest.approx(getattr(raw, column), abs=1e-6), column

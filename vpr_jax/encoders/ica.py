@@ -155,11 +155,8 @@ def negentropy(
 
 
 def data_rank(state: pca.PCAState, n_samples: int) -> int:
-    """Numerical rank of the training data behind a PCA fit (float32 matrix_rank rule)."""
-    var = np.asarray(state.explained_variance)
-    n_features = state.components.shape[1]
-    eps = np.finfo(np.float32).eps * max(n_samples, n_features)
-    return int(np.sum(var > var[0] * eps * eps)) if var.size and var[0] > 0 else 0
+    """Numerical rank of the training data behind a PCA fit (``pca.numerical_rank``)."""
+    return pca.numerical_rank(state.explained_variance, n_samples, state.components.shape[1])
 
 
 def resolve_n_components(n_components: int | str | None, removed_pcs: int, rank: int) -> int:

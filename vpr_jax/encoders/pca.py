@@ -14,6 +14,14 @@ Fits (``solver``) all end in ``jnp.linalg.eigh``:
 - ``auto``: ``subspace`` when the components asked for are few (``n_components`` +
   oversampling at most a quarter of the rank limit), else the smaller of the other two.
 
+Every solver returns orthonormal components, and only as many as the data's numerical rank
+holds (``numerical_rank``): real routes repeat frames (a train at a station, black tunnel
+frames), so training images are often rank-deficient. The Gram and subspace solvers end in
+a Householder QR of the directions they found and a Rayleigh-Ritz step (the scatter's
+eigenvectors within their span), which is orthonormal whatever the rank; directions whose
+variance is below the rank's floor are dropped. ``fit_pca`` checks the result
+(``check_orthonormal``) and raises rather than return a fit that is not PCA.
+
 A removed count's descriptor has two forms with the same cosine similarities:
 - ``output="coefficients"``: ``[c_1 .. c_K, r]`` with the first k coefficients zeroed, ``c``
   the coefficients on the K fitted components and ``r`` the residual after all K (left out
@@ -25,6 +33,7 @@ A removed count's descriptor has two forms with the same cosine similarities:
 from __future__ import annotations
 
 import functools
+import math
 import typing
 from typing import Literal, NamedTuple
 
@@ -65,6 +74,51 @@ def device_rows(images) -> Float[Array, "n d"]:
 def rank_limit(n_samples: int, n_features: int) -> int:
     """How many components centred data of this shape can have."""
     return min(n_samples - 1, n_features)
+
+
+def rank_tolerance(n_samples: int, n_features: int) -> float:
+    """The numerical rank's floor on a component's variance, relative to the largest:
+    ``sqrt(max(n, d)) * eps`` (float32), 5.4e-6 for 2,048 pixels. Every solver forms sums
+    of products of length n or d in float32, whose rounding grows as the square root of
+    the length (Higham's probabilistic bound; LAPACK's worst-case rule, ``max(n, d) * eps``,
+    would drop components that float32 resolves to 0.1%): a zero variance came out at up
+    to 2 eps on the measured sets (docs/methods.md, "PCA on any training set")."""
+    return math.sqrt(max(n_samples, n_features)) * float(np.finfo(np.float32).eps)
+
+
+def numerical_rank(explained_variance, n_samples: int, n_features: int) -> int:
+    """How many of these variances (descending) stand above ``rank_tolerance`` of the
+    largest: the components the data hold."""
+    var = np.asarray(explained_variance, np.float64)
+    if not var.size or not var[0] > 0:
+        return 0
+    return int(np.sum(var > var[0] * rank_tolerance(n_samples, n_features)))
+
+
+ORTHONORMAL_TOLERANCE = 1e-4  # largest |C C^T - I| a fit may have
+
+
+class NotOrthonormal(ValueError):
+    """A solver's components are not orthonormal: the fit is not PCA and is never used."""
+
+
+@jax.jit
+def orthonormality_error(components: Float[Array, "c d"]) -> Float[Array, ""]:
+    """``max |C C^T - I|`` of the rows of ``components``."""
+    gram = components @ components.T
+    return jnp.max(jnp.abs(gram - jnp.eye(gram.shape[0], dtype=gram.dtype)))
+
+
+def check_orthonormal(state: PCAState, solver: str) -> None:
+    """``NotOrthonormal`` unless the fit's components are orthonormal within tolerance:
+    such a fit is not PCA, and every method built on it would score nonsense without a
+    word."""
+    error = float(orthonormality_error(state.components))
+    if not error < ORTHONORMAL_TOLERANCE:  # NaN fails too
+        raise NotOrthonormal(
+            f"the {solver} PCA solver gave components that are not orthonormal (max |C C^T "
+            f"- I| = {error:.2g}, tolerance {ORTHONORMAL_TOLERANCE:g})"
+        )
 
 
 SUBSPACE_OVERSAMPLE = 40  # extra directions the range finder carries (Halko et al.'s p)
@@ -153,18 +207,31 @@ def _from_scatter(mean, scatter, n, n_components: int) -> PCAState:
     return PCAState(mean, flip_signs(components), jnp.maximum(eigvals, 0.0))
 
 
+def _rayleigh_ritz(centred_times, n: int, basis, n_components: int) -> PCAState:
+    """The leading ``n_components`` principal components within the span of ``basis``
+    (d, l): Householder QR makes an orthonormal Q whatever the basis's rank, then the
+    eigenvectors of the scatter restricted to Q (``B^T B`` with ``B = X_c Q``, from
+    ``centred_times(Q)``) rotate it. ``mean`` is filled in by the caller."""
+    q, _ = jnp.linalg.qr(basis)
+    b = centred_times(q)
+    small = b.T @ b
+    eigvals, eigvecs = jnp.linalg.eigh((small + small.T) / 2)
+    eigvals = eigvals[::-1][:n_components] / (n - 1)
+    components = (q @ eigvecs[:, ::-1][:, :n_components]).T
+    return PCAState(None, flip_signs(components), jnp.maximum(eigvals, 0.0))
+
+
 @functools.partial(jax.jit, static_argnames=("n_components",))
 def _fit_gram(x: Float[Array, "n d"], n_components: int) -> PCAState:
     n = x.shape[0]
     mean = jnp.mean(x, axis=0)
     xc = x - mean
-    eigvals, eigvecs = jnp.linalg.eigh(xc @ xc.T)
-    eigvals = eigvals[::-1][:n_components]
-    # Right singular vectors from left ones: v_i = Xc^T u_i / sqrt(lambda_i).
-    scale = jnp.where(eigvals > 0, jax.lax.rsqrt(jnp.maximum(eigvals, 1e-30)), 0.0)
-    components = (xc.T @ eigvecs[:, ::-1][:, :n_components] * scale).T
-    eigvals = eigvals / (n - 1)
-    return PCAState(mean, flip_signs(components), jnp.maximum(eigvals, 0.0))
+    _, eigvecs = jnp.linalg.eigh(xc @ xc.T)
+    # Right singular vectors from left ones, v_i = Xc^T u_i / sigma_i, hold only where
+    # lambda_i stands well above rounding (on real frames they drift from orthogonal by
+    # 2e-3 at 400 components); as a basis for Rayleigh-Ritz, they give exact components.
+    leading = eigvecs[:, ::-1][:, :n_components]
+    return _rayleigh_ritz(lambda q: xc @ q, n, xc.T @ leading, n_components)._replace(mean=mean)
 
 
 def _scatter_times(x, mean, v):
@@ -174,15 +241,18 @@ def _scatter_times(x, mean, v):
     return x.T @ w - jnp.outer(mean, jnp.sum(w, axis=0))
 
 
-def _cholesky_inverse(gram):
+def _cholesky_inverse(gram, floor):
     """``L^{-1}`` for the Cholesky factor ``L`` of a small symmetric positive matrix, by
-    column-by-column loops of matrix-vector products: XLA operations only."""
+    column-by-column loops of matrix-vector products: XLA operations only. A pivot is at
+    least ``floor``, the smallest eigenvalue the matrix has in exact arithmetic (its
+    shift): rounding can take a pivot of a matrix near float32's conditioning limit to zero
+    or below, and dividing by it turned every component NaN."""
     size = gram.shape[0]
     rows = jnp.arange(size)
 
     def factor_column(j, low):
         v = gram[:, j] - low @ low[j]  # columns >= j of low are still zero
-        pivot = jnp.sqrt(jnp.maximum(v[j], jnp.finfo(gram.dtype).tiny))
+        pivot = jnp.sqrt(jnp.maximum(v[j], floor))
         return low.at[:, j].set(jnp.where(rows >= j, v / pivot, 0.0))
 
     low = jax.lax.fori_loop(0, size, factor_column, jnp.zeros_like(gram))
@@ -210,8 +280,11 @@ def _orthonormalise(y):
     cores."""
     for _ in range(2):
         gram = y.T @ y
-        shift = CHOLESKY_SHIFT * jnp.trace(gram) / gram.shape[0] + jnp.finfo(y.dtype).tiny
-        y = y @ _cholesky_inverse(gram + shift * jnp.eye(gram.shape[0], dtype=y.dtype)).T
+        size = gram.shape[0]
+        rounding = size * jnp.finfo(y.dtype).eps * jnp.max(jnp.diag(gram))
+        shift = jnp.maximum(CHOLESKY_SHIFT * jnp.trace(gram) / size, rounding)
+        shift = shift + jnp.finfo(y.dtype).tiny
+        y = y @ _cholesky_inverse(gram + shift * jnp.eye(gram.shape[0], dtype=y.dtype), shift).T
     return y
 
 
@@ -224,13 +297,11 @@ def _fit_subspace(x, key, n_components: int, n_iter: int, oversample: int) -> PC
     basis = _orthonormalise(jax.random.normal(key, (d, width), x.dtype))
     for _ in range(n_iter - 1):  # a few: unrolled, each one scatter product
         basis = _orthonormalise(_scatter_times(x, mean, basis))
-    # The last block through Householder QR: robust whatever the data's rank.
-    basis, _ = jnp.linalg.qr(_scatter_times(x, mean, basis))
-    small = basis.T @ _scatter_times(x, mean, basis)  # (l, l): the scatter on the subspace
-    eigvals, eigvecs = jnp.linalg.eigh((small + small.T) / 2)
-    eigvals = eigvals[::-1][:n_components] / (n - 1)
-    components = (basis @ eigvecs[:, ::-1][:, :n_components]).T
-    return PCAState(mean, flip_signs(components), jnp.maximum(eigvals, 0.0))
+    # The last block through Householder QR and Rayleigh-Ritz: robust whatever the rank.
+    state = _rayleigh_ritz(
+        lambda q: x @ q - mean @ q, n, _scatter_times(x, mean, basis), n_components
+    )
+    return state._replace(mean=mean)
 
 
 def fit_pca(
@@ -244,7 +315,10 @@ def fit_pca(
 ) -> PCAState:
     """Fit PCA on training images (any trailing shape; flattened to D pixels).
 
-    ``n_components`` defaults to the rank limit min(N - 1, D). The covariance solver sums
+    ``n_components`` defaults to the rank limit min(N - 1, D); the fit holds fewer where
+    the data's numerical rank is lower (``numerical_rank``: repeated or constant images).
+    ``NotOrthonormal`` for a fit that is not orthonormal (``check_orthonormal``). The covariance
+    solver sums
     the centred scatter over blocks of ``block_rows`` images, and with a ``mesh`` splits
     the images across its devices (``vpr_jax.sharding``); the Gram and subspace solvers
     run on one device (the subspace solver's products are a few passes over the images).
@@ -263,21 +337,31 @@ def fit_pca(
         raise ValueError(f"n_components={n_components} outside 1..{limit} for {n} x {d} data")
     chosen = choose_solver(n, d, solver, n_components)
     if chosen == "gram":
-        return _fit_gram(x, n_components)
-    if chosen == "subspace":
-        return _fit_subspace(
+        state = _fit_gram(x, n_components)
+    elif chosen == "subspace":
+        state = _fit_subspace(
             jnp.asarray(x, jnp.float32),
             jax.random.key(seed),
             n_components,
             SUBSPACE_POWER_ITERATIONS,
             SUBSPACE_OVERSAMPLE,
         )
-    if mesh is None:
-        mean, scatter = _moments(x, block_rows)
     else:
-        rows = sharding.put_rows(sharding.pad_rows(x, sharding.mesh_size(mesh)), mesh)
-        mean, scatter = _sharded_moments(mesh, block_rows)(rows, jnp.float32(n))
-    return _from_scatter(mean, scatter, n, n_components)
+        if mesh is None:
+            mean, scatter = _moments(x, block_rows)
+        else:
+            rows = sharding.put_rows(sharding.pad_rows(x, sharding.mesh_size(mesh)), mesh)
+            mean, scatter = _sharded_moments(mesh, block_rows)(rows, jnp.float32(n))
+        state = _from_scatter(mean, scatter, n, n_components)
+    kept = numerical_rank(state.explained_variance, n, d)
+    if kept < 1:
+        raise ValueError(f"PCA of {n} training images found no variance: every image is the same")
+    if kept < n_components:  # host slices: the components the data hold
+        state = state._replace(
+            components=state.components[:kept], explained_variance=state.explained_variance[:kept]
+        )
+    check_orthonormal(state, chosen)
+    return state
 
 
 @jax.jit

@@ -32,6 +32,13 @@ RESOURCES = ("pca_fit", "validation", "training", "mesh")
 SWEEP_AXES = ("removed_pcs",)  # the sweep's own axes a method may take (``sweeps``)
 
 
+class NotScored(Exception):
+    """Raised by a method's ``fit`` (for every cell of the fit) or ``report`` (for that
+    cell) when this pair's training set cannot serve it, e.g. a removed count beyond the
+    numerical rank of repeated frames: the runner leaves those cells out with the message
+    as a note and goes on. Nothing is scored that the data cannot define."""
+
+
 class Report(NamedTuple):
     """What a fit found beyond its state: results.csv's fit columns, the run log, the
     TensorBoard run's basis images."""
@@ -110,6 +117,8 @@ class PCAFit(NamedTuple):
     state: Any  # vpr_jax.encoders.pca.PCAState
     seconds: float
     removed_pcs: tuple[int, ...]  # the sweep's removed counts (what a residual input picks from)
+    asked: int = 0  # components asked for; the state holds fewer where the training
+    # images' numerical rank is lower (vpr_jax.encoders.pca.numerical_rank)
 
 
 class Validation(NamedTuple):

@@ -12,6 +12,7 @@ from jaxtyping import Array, Float
 from vpr_jax.encoders import diff_pca, pca
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, Report, TrainingSet
+from vpr_jax.methods.pca import beyond_rank
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,6 +63,8 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings:
 def _report(state, settings: dict) -> Report:
     k = settings["removed_pcs"]
     components = np.asarray(state.components)  # host slices: a count compiles nothing
+    if k > len(components):
+        raise beyond_rank(k, len(components), "directions of change")
     return Report(basis=components[:k] if k else None, basis_name="removed_changes")
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from vpr_jax.encoders import ica
 from vpr_jax.errors import UserError
-from vpr_jax.methods.contract import Method, PCAFit, Report, TrainingSet
+from vpr_jax.methods.contract import Method, NotScored, PCAFit, Report, TrainingSet
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,8 +49,8 @@ def fit(train, aligned, key, *, pca_fit: PCAFit, removed_pcs: int, **settings) -
     rank = ica.data_rank(pca_fit.state, len(train))
     try:
         ica.resolve_n_components(settings["n_components"], removed_pcs, rank)
-    except ValueError as err:
-        raise UserError(str(err)) from None
+    except ValueError as err:  # a rank below the plan's limit: repeated or constant frames
+        raise NotScored(str(err)) from None
     return ica.fit_ica(train, key, removed_pcs=removed_pcs, pca_state=pca_fit.state, **settings)
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from vpr_jax.encoders import lda, pca
+from vpr_jax.encoders import lda
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, PCAFit, Report, TrainingSet
 
@@ -29,8 +29,9 @@ class Settings:
 
 
 def fit(train, aligned, key, *, pca_fit: PCAFit, n_components: int, shrinkage: float):
-    """In all the components the training images have, when they have fewer."""
-    m = min(n_components, pca.rank_limit(len(train), train[0].size))
+    """In all the components the training images hold, when they hold fewer (the shared
+    fit keeps only its numerical rank)."""
+    m = min(n_components, len(pca_fit.state.components))
     return lda.fit_lda(pca_fit.state, *aligned, m, shrinkage)
 
 
@@ -48,6 +49,17 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings:
     return settings
 
 
+def _report(state: lda.LDAState, settings: dict) -> Report:
+    held, asked = len(state.transform), settings["n_components"]
+    warning = None
+    if held < asked:
+        warning = (
+            f"lda whitens in the {held} principal components the training images hold (their "
+            f"numerical rank), not lda.n_components={asked}"
+        )
+    return Report(basis=state.transform, basis_name="invariant_directions", warning=warning)
+
+
 method = Method(
     fit=fit,
     encode=encode,
@@ -57,5 +69,5 @@ method = Method(
     random=False,
     check=check,
     pca_components=lambda s, training: s.n_components,
-    report=lambda state, settings: Report(basis=state.transform, basis_name="invariant_directions"),
+    report=_report,
 )

@@ -25,7 +25,7 @@ from jaxtyping import Array, Float
 
 from vpr_jax.encoders import pca
 from vpr_jax.errors import UserError
-from vpr_jax.methods.contract import Method, PCAFit, Report, SharedFit
+from vpr_jax.methods.contract import Method, NotScored, PCAFit, Report, SharedFit
 
 OUTPUTS = ("coefficients", "pixels")
 
@@ -80,10 +80,15 @@ def shared_components(settings: Settings, n_images: int, n_pixels: int) -> int:
 
 
 def shared_fit(train, n_components: int, settings: Settings, mesh, seed: int) -> pca.PCAState:
-    """The pair's PCA fit of ``n_components`` (``shared_components``)."""
+    """The pair's PCA fit of ``n_components`` (``shared_components``), or fewer where the
+    training images' numerical rank is lower."""
     n_pixels = int(np.prod(np.shape(train)[1:]))
     solver = _solver(settings, len(train), n_pixels)
-    return pca.fit_pca(train, n_components, solver=solver, mesh=mesh, seed=seed)
+    try:
+        return pca.fit_pca(train, n_components, solver=solver, mesh=mesh, seed=seed)
+    except pca.NotOrthonormal as err:
+        other = "covariance" if solver != "covariance" else "gram"
+        raise UserError(f"{err} on {len(train)} training images: set pca.solver={other}") from None
 
 
 def fit(train, aligned, key, *, pca_fit: PCAFit, output: str, **shared_settings):
@@ -98,9 +103,19 @@ def encode(state, images: Float[Array, "n h w"], removed_pcs: int = 0) -> Float[
     return pca.suffix_descriptors(state, images)[:, removed_pcs:]
 
 
+def beyond_rank(k: int, held: int, what: str) -> NotScored:
+    """Why a removed count beyond a fit's components is not scored."""
+    return NotScored(
+        f"removed_pcs={k} is beyond the {held} {what} the training images hold (their "
+        f"numerical rank: repeated or constant frames); counts up to {held} are scored"
+    )
+
+
 def _report(state, settings: dict) -> Report:
     k = settings["removed_pcs"]
     components = np.asarray((state.fit if isinstance(state, InPixels) else state).components)
+    if k > len(components):  # the first k components are not defined by these images
+        raise beyond_rank(k, len(components), "principal components")
     return Report(basis=components[:k] if k else None, basis_name="removed_components")
 
 

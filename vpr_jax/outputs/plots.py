@@ -17,6 +17,7 @@ matplotlib.use("Agg")  # files only; no display on clusters or CI
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from vpr_jax.files import atomic_open  # noqa: E402
 from vpr_jax.outputs.palette import label_of, styles  # noqa: E402
 from vpr_jax.outputs.results import (  # noqa: E402
     ResultRow,
@@ -49,17 +50,22 @@ def _mean(rows: list[ResultRow], metric: str) -> float:
 
 
 def _save(fig, path: Path) -> None:
-    """Write the figure as PNG, its legend entries in the file's Description text (any PNG
-    reader shows which methods a figure holds without looking at it), and close it."""
-    fig.tight_layout()
-    entries = [
-        text.get_text()
-        for ax in fig.axes
-        if ax.get_legend()
-        for text in ax.get_legend().get_texts()
-    ]
-    fig.savefig(path, dpi=120, metadata={"Description": "; ".join(dict.fromkeys(entries))})
-    plt.close(fig)
+    """Write the figure as PNG, all or nothing, its legend entries in the file's
+    Description text (any PNG reader shows which methods a figure holds without looking at
+    it), and close it, also when drawing fails."""
+    try:
+        fig.tight_layout()
+        entries = [
+            text.get_text()
+            for ax in fig.axes
+            if ax.get_legend()
+            for text in ax.get_legend().get_texts()
+        ]
+        metadata = {"Description": "; ".join(dict.fromkeys(entries))}
+        with atomic_open(path, "wb") as f:
+            fig.savefig(f, format="png", dpi=120, metadata=metadata)
+    finally:
+        plt.close(fig)
 
 
 def _shortest_sequences(rows: list[ResultRow]) -> list[ResultRow]:
@@ -91,11 +97,12 @@ def pr_curves_figure(
 
 
 def _range(rows: list[ResultRow], mean: float) -> list[float]:
-    """(below, above) the mean of a method's seeds' recall@1: the bar's whisker."""
+    """(below, above) the mean of a method's seeds' recall@1: the bar's whisker. Never below
+    zero: seeds that tie give a mean a rounding away from their value."""
     if len(rows) < 2:
         return [0.0, 0.0]
     recalls = [r.recall_at_1 for r in rows]
-    return [mean - min(recalls), max(recalls) - mean]
+    return [max(mean - min(recalls), 0.0), max(max(recalls) - mean, 0.0)]
 
 
 def correct_matches_figure(rows: list[ResultRow], path: Path):
