@@ -27,6 +27,7 @@ from vpr_jax.data.precomputed import OutsideSide, read_precomputed
 from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
+from vpr_jax.method_table import NAMES as METHOD_NAMES
 from vpr_jax.methods.contract import SharedFit, TrainingSet
 from vpr_jax.methods.settings import effective
 from vpr_jax.outputs.logdir import check_same_config, identity, prepare_logdir
@@ -150,6 +151,7 @@ def make_plan(
             "false: single images only (add sequence.enabled=true for the ds axis)"
         )
     aligned = cfg.data.aligned_training
+    _note_unused_settings(cfg, given, log)
     methods = resolve.resolve_methods(cfg, aligned, cfg.data.source, asked)
     shared_fit = resolve.shared_fit_settings(cfg)
     data = _load(cfg, benchmark, log)
@@ -178,6 +180,18 @@ def make_plan(
         shared_fit=shared_fit,
         identity=identity(cfg),
     )
+
+
+def _note_unused_settings(cfg: SweepConfig, given: frozenset[str], log: Log) -> None:
+    """One note per built-in method whose settings the command line sets although
+    ``methods`` leaves it out: nothing reads them."""
+    for name in METHOD_NAMES:
+        keys = sorted(k for k in given if k.startswith(f"{name}."))
+        if keys and name not in cfg.methods:
+            log(
+                f"note: {', '.join(keys)} set, but methods={list(cfg.methods)} has no {name}: "
+                f"unused (add {name} to methods to sweep it)"
+            )
 
 
 class _Data(NamedTuple):

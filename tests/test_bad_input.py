@@ -184,6 +184,10 @@ CONFIG_CASES = {
         ["lda.shrinkage=[0.1,2]"],
         ["lda.shrinkage=2", "[0, 1]"],
     ),
+    "an empty list for a setting": (
+        ["ica.n_components=[]"],
+        ["ica.n_components=[] is an empty list", "values to sweep"],
+    ),
     "a swept setting of the shared PCA fit": (
         ["pca.solver=[auto,gram]"],
         ["pca.solver is a list", "shared PCA fit"],
@@ -229,6 +233,19 @@ def test_bad_config(case, tmp_path):
     proc = run_here(*args, f"logdir={tmp_path / 'runs'}")
     assert_one_line_error(proc, *words)
     assert _snapshot(tmp_path / "runs") == {}
+
+
+def test_a_setting_of_a_method_left_out_of_methods_is_noted(tmp_path):
+    """Not refused (a long command may keep settings of a method it drops), but said."""
+    proc = run_here(
+        *TINY,
+        "methods=[raw]",
+        "fae.hidden=[64,128]",
+        "season_pairs=summer-fall",
+        f"logdir={tmp_path / 'runs'}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "note: fae.hidden set, but methods=['raw'] has no fae: unused" in proc.stdout
 
 
 def test_logdir_that_is_a_file(tmp_path):

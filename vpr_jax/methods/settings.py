@@ -118,6 +118,12 @@ def expand(schema: type | None, given: dict, group: str) -> list[Combination]:
     of the cross product of the axes, each checked."""
     given = _coerce(schema, given) if schema is not None else dict(given)
     axes = [n for n in _field_names(schema, given) if n in given and is_axis(schema, n, given[n])]
+    empty = [n for n in _field_names(schema, given) if given.get(n) in ([], ())]
+    if empty and (schema is None or empty[0] not in _tuple_fields(schema)):
+        raise UserError(
+            f"{group}.{empty[0]}=[] is an empty list: give one value, or the list of values to "
+            "sweep"
+        )
     out = []
     for values in itertools.product(*(given[n] for n in axes)):
         chosen = {**given, **{n: _plain(v) for n, v in zip(axes, values, strict=True)}}
