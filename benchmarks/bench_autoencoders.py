@@ -1,6 +1,6 @@
 """Auto-encoder speed: encode ms per image against the seed's Table 5, and training s per epoch.
 
-    python benchmarks/bench_autoencoders.py [--repeats 3] [--epoch-steps N]
+    python benchmarks/bench_autoencoders.py [--repeats 3] [--epoch-steps N] [--tiny]
 
 Models: FAE (2,048 -> 256 -> 2,048), the default CAE (``cae.model=fast``: 2x2 pixel blocks to
 channels, 3x3 convolutions of 24 and 48 channels, a 4x8x32 code), the quick preset's (the
@@ -20,6 +20,9 @@ validation tail, as the sweep splits them), batch 64 -> 70 steps per epoch, adam
 augmentation on; the jitted train_step over one shuffled epoch after one warm-up step (its
 compilation is reported separately). With --epoch-steps N < 70 only N steps are timed and the
 epoch is extrapolated. No peer: the seed reports training totals for the whole study only.
+
+``--tiny`` (for the tests): ``common.TINY_SIZES``'s whole images (100 + 100 to encode, 270 to
+train on), one warm run, 2 training steps of batch 16 per model.
 """
 
 from __future__ import annotations
@@ -31,29 +34,35 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import seed_route, timed
+from common import TINY_HELP, route_sizes, seed_route, timed
 
-from vpr_jax.config import CAEConfig, TrainConfig
+from vpr_jax.config import TrainConfig
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders.train import make_optimizer, make_train_step
+from vpr_jax.methods import cae
+
+TINY_EPOCH_STEPS, TINY_BATCH = 2, 16
 
 
 def _cae(model: str, **changes) -> ae.CAESpec:
-    cfg = CAEConfig(model=model, **changes)
+    """The CAE the sweep builds for ``cae.model=MODEL`` and ``cae.KEY=VALUE`` changes: the
+    named architecture with the parts set overriding it (``cae.architecture``)."""
+    settings = cae.Settings(model=model, **changes)
+    a = cae.architecture(settings)
     return ae.CAESpec(
-        channels=cfg.channels,
-        kernel_sizes=cfg.kernel_sizes,
-        code_channels=cfg.code_channels,
-        space_to_depth=cfg.space_to_depth,
-        standardise=cfg.standardise,
+        channels=tuple(a["channels"]),
+        kernel_sizes=tuple(a["kernel_sizes"]),
+        code_channels=a["code_channels"],
+        space_to_depth=a["space_to_depth"],
+        standardise=settings.standardise,
     )
 
 
 MODELS = (  # name, spec, seed's Table 5 ms per image on a GTX 1060 (its peer)
     ("FAE hidden 256", ae.FAESpec(standardise=True), 3.26),
     ("CAE fast (24,48) s2d2", _cae("fast"), 17.5),
-    ("CAE quick (16,32) s2d2", _cae("fast", channels=[16, 32]), 17.5),
+    ("CAE quick (16,32) s2d2", _cae("fast", channels=(16, 32)), 17.5),
     ("CAE calc (64,128) c8", _cae("calc"), 17.5),
 )
 GOAL = 0.1  # ours / seed at most
@@ -103,8 +112,7 @@ def bench_encode(
     )
 
 
-def bench_train(spec, name: str, images: np.ndarray, steps: int) -> None:
-    settings = TrainConfig()
+def bench_train(spec, name: str, images: np.ndarray, steps: int, settings: TrainConfig) -> None:
     graphdef, params = ae.build(spec, jax.random.key(0))
     tx = make_optimizer(settings)
     opt_state = tx.init(params)
@@ -144,20 +152,27 @@ def bench_train(spec, name: str, images: np.ndarray, steps: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3, help="warm encode runs (median)")
+    parser.add_argument(
+        "--repeats", type=int, default=None, help="warm encode runs (median; 3, --tiny: 1)"
+    )
     parser.add_argument(
         "--epoch-steps",
         type=int,
         default=None,
-        help="training steps timed per model (default: the whole epoch, 70); "
-        "fewer are extrapolated to the epoch",
+        help="training steps timed per model (default: the whole epoch, 70; --tiny: "
+        f"{TINY_EPOCH_STEPS}); fewer are extrapolated to the epoch",
     )
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     args = parser.parse_args()
+    if args.repeats is None:
+        args.repeats = 1 if args.tiny else 3
+    if args.epoch_steps is None and args.tiny:
+        args.epoch_steps = TINY_EPOCH_STEPS
     if args.epoch_steps is not None and args.epoch_steps < 1:
         parser.error("--epoch-steps must be >= 1")
     start = time.perf_counter()
 
-    train, db, query = seed_route()
+    train, db, query = seed_route(**route_sizes(args.tiny, images=True))
     shape = ae.IMAGE_SHAPE
     db, query = db.reshape(len(db), *shape), query.reshape(len(query), *shape)
     # The seed's 4,500 training images: each season's stretch less its last tenth.
@@ -186,7 +201,7 @@ def main() -> None:
         "every CAE is compared with the seed's CAE; MFLOP: encoder, per image"
     )
 
-    settings = TrainConfig()
+    settings = TrainConfig(batch_size=TINY_BATCH) if args.tiny else TrainConfig()
     per_epoch = len(train_images) // settings.batch_size
     steps = per_epoch if args.epoch_steps is None else args.epoch_steps
     print(
@@ -199,7 +214,7 @@ def main() -> None:
         f"{'images/s':>9} {'GFLOP/s':>7} {'loss':>9}"
     )
     for name, spec, _ in MODELS:
-        bench_train(spec, name, train_images, steps)
+        bench_train(spec, name, train_images, steps, settings)
     print(
         f"  no peer: the seed gives training totals for its whole study only "
         f"({SEED_TRAINING}, GTX 1060)"

@@ -1,6 +1,6 @@
 """FastICA speed and separation quality against scikit-learn, measured in the same run.
 
-    python benchmarks/bench_ica.py [--repeats 2] [--components 64,256]
+    python benchmarks/bench_ica.py [--repeats 2] [--components 64,256] [--tiny]
 
 Seed's size: 5,000 x 2,048 training images (2,500 frames of summer and fall of the built-in
 route). Both sides fit from raw images (centring, whitening, iterations) with the same
@@ -12,6 +12,9 @@ excluded, reported separately). Goal from the ICA issue: ours >= 5x faster.
 A known-source problem of the same size shows the separation quality: n independent sources
 (half Laplace, half uniform) mixed into 2,048 pixels by a random matrix, plus 1% noise;
 Amari distance of the recovered unmixing from the true mixing (0 = perfect).
+
+``--tiny`` (for the tests): ``common.TINY_SIZES`` (300 images of 256 pixels), 8 components
+unless ``--components`` names others, one warm run.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import warnings
 
 import jax
 import numpy as np
-from common import seed_route, timed
+from common import TINY_HELP, TINY_ICA_COMPONENTS, route_sizes, seed_route, timed
 from peers import native_blas_process
 from sklearn.decomposition import FastICA
 
@@ -64,12 +67,21 @@ def known_sources(n: int, d: int, c: int, seed: int = 0) -> tuple[np.ndarray, np
 def main() -> None:
     native_blas_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=2, help="warm runs of ours (median)")
-    parser.add_argument("--components", default="64,256", help="n_components to measure")
+    parser.add_argument(
+        "--repeats", type=int, default=None, help="warm runs of ours (median; 2, --tiny: 1)"
+    )
+    parser.add_argument(
+        "--components", default=None, help="n_components to measure (64,256; --tiny: 8)"
+    )
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     args = parser.parse_args()
+    if args.repeats is None:
+        args.repeats = 1 if args.tiny else 2
+    if args.components is None:
+        args.components = str(TINY_ICA_COMPONENTS) if args.tiny else "64,256"
     sizes = [int(c) for c in args.components.split(",")]
 
-    train, _, _ = seed_route()
+    train, _, _ = seed_route(**route_sizes(args.tiny))
     print(
         f"jax {jax.__version__} on {jax.devices()[0].platform}; images {train.shape} "
         f"{train.dtype}; fun={SETTINGS['fun']} tol={SETTINGS['tol']} "
@@ -94,7 +106,10 @@ def main() -> None:
                 f"{model.n_iter_:7d} {peer / ours:8.1f}x"
             )
 
-    print("\nKnown sources mixed into 5,000 x 2,048 (Amari distance: lower is better)")
+    print(
+        f"\nKnown sources mixed into {train.shape[0]:,} x {train.shape[1]:,} "
+        "(Amari distance: lower is better)"
+    )
     print(header + f" {'amari':>7}")
     for c in sizes:
         x, mixing = known_sources(train.shape[0], train.shape[1], c)

@@ -1,6 +1,6 @@
 """Linear-method speed on the seed's sizes, every figure a ratio to a peer timed in this run.
 
-    python benchmarks/bench_linear.py [--repeats 3]
+    python benchmarks/bench_linear.py [--repeats 3] [--tiny]
 
 Sizes: a 5,000 x 2,048 training matrix (2,500 frames of two seasons of the built-in route)
 and 3,569 queries x 3,569 database images. Times are medians of warm runs (compilation
@@ -14,6 +14,8 @@ The scikit-learn and numpy peers run in a fresh process without OPENBLAS_CORETYP
 OPENBLAS_L2_SIZE (``peers.py``); the dense-metrics peer is numpy indexing, in this process.
 and, at the full route's size (3,569 queries, top-10 of a 35,768-frame database), the
 metrics against a numpy peer that builds the dense (queries x database) ground truth.
+``--tiny`` (for the tests): ``common.TINY_SIZES``, a 2,000-frame database for the metrics,
+one warm run, the peers on the same tiny data.
 """
 
 from __future__ import annotations
@@ -22,8 +24,8 @@ import argparse
 
 import jax
 import numpy as np
+from common import TINY_HELP, route_sizes, seed_route, timed
 from common import ratio_row as row
-from common import seed_route, timed
 from peers import FORCING, ours_report, run_peer
 
 from vpr_jax.encoders import pca
@@ -31,6 +33,7 @@ from vpr_jax.evaluation.matching import top_k_matches
 from vpr_jax.evaluation.metrics import evaluate_top_k
 
 REMOVED_PCS = (0, 5, 10, 20, 50, 100)
+FULL_ROUTE, TINY_ROUTE = 35_768, 2_000  # the metrics' database
 
 
 def dense_metrics(top_idx, query_ids, db_ids, tolerance: int) -> tuple[float, float]:
@@ -43,16 +46,20 @@ def dense_metrics(top_idx, query_ids, db_ids, tolerance: int) -> tuple[float, fl
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=None, help="warm runs (3; --tiny: 1)")
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     args = parser.parse_args()
+    if args.repeats is None:
+        args.repeats = 1 if args.tiny else 3
+    tiny = args.tiny
 
-    train, db, query = seed_route()
+    train, db, query = seed_route(**route_sizes(tiny))
     print(
         f"jax {jax.__version__} on {jax.devices()[0].platform}; train {train.shape}, "
         f"queries {query.shape[0]} x database {db.shape[0]}\n"
     )
 
-    full = run_peer("pca_covariance_eigh", args.repeats)
+    full = run_peer("pca_covariance_eigh", args.repeats, tiny)
     print(f"peers' BLAS (run without {', '.join(FORCING)}): {full['blas']}")
     print(f"ours: {ours_report()}\n")
     first, ours = timed(lambda: pca.fit_pca(train, solver="covariance"), args.repeats)
@@ -62,7 +69,7 @@ def main() -> None:
     row(
         "PCA fit, 100 components",
         ours,
-        run_peer("pca_randomized_100", args.repeats)["seconds"],
+        run_peer("pca_randomized_100", args.repeats, tiny)["seconds"],
         "sklearn randomized",
         "<= 1.0x",
     )
@@ -95,13 +102,13 @@ def main() -> None:
     row(
         "matching, top-10 cosine",
         ours,
-        run_peer("numpy_top_k", args.repeats)["seconds"],
+        run_peer("numpy_top_k", args.repeats, tiny)["seconds"],
         "numpy brute force",
         "<= 1.2x",
     )
 
     rng = np.random.default_rng(0)  # route-sized top-10 lists with ~30% true matches
-    n_db, n_q = 35_768, query.shape[0]
+    n_db, n_q = TINY_ROUTE if tiny else FULL_ROUTE, query.shape[0]
     db_ids, query_ids = rng.permutation(n_db) + 1, np.arange(1, n_db + 1, 10)[:n_q]
     where = np.empty(n_db + 1, np.int64)
     where[db_ids] = np.arange(n_db)

@@ -1,6 +1,6 @@
 """Sequence matching speed against a straightforward numpy search timed in the same run.
 
-    python benchmarks/bench_sequence.py [--repeats 3] [--ds 10] [--no-full-route]
+    python benchmarks/bench_sequence.py [--repeats 3] [--ds 10] [--no-full-route] [--tiny]
 
 The peer is tests/sequence_reference.py: openSeqSLAM's search written in numpy (a loop over
 queries, then velocities and steps, each step vectorised over the database), the oracle the
@@ -13,6 +13,8 @@ Sizes, on the built-in route's raw pixels (cosine similarity of 2,048-pixel desc
 Both searches start from the same similarity matrix; ours is timed warm (compilation
 reported apart), and also from descriptors, computing the cosine block by block inside
 (what the sweep runs: the full matrix is never held).
+``--tiny`` (for the tests): 200 queries after ``common.TINY_SIZES``'s training stretch and
+gap, a 1,000-frame "full route", one warm run.
 """
 
 from __future__ import annotations
@@ -23,8 +25,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from common import TINY_HELP, route_sizes, timed
 from common import ratio_row as row
-from common import timed
 from peers import native_blas_process
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests/ holds the peer
@@ -32,7 +34,7 @@ from tests.sequence_reference import sequence_top_k_numpy  # noqa: E402
 from vpr_jax.data.synthetic import synthetic_route  # noqa: E402
 from vpr_jax.evaluation.sequence import sequence_top_k, sequence_top_k_cosine  # noqa: E402
 
-N_TEST, FULL_ROUTE = 3569, 35768
+FULL_ROUTE, TINY_FULL_ROUTE = 35768, 1000
 
 
 def numpy_cosine(q: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -74,20 +76,28 @@ def compare(name: str, queries, database, ds: int, repeats: int) -> None:
 def main() -> None:
     native_blas_process()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=None, help="warm runs (3; --tiny: 1)")
     parser.add_argument("--ds", type=int, default=10)
     parser.add_argument("--no-full-route", action="store_true")
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     args = parser.parse_args()
+    if args.repeats is None:
+        args.repeats = 1 if args.tiny else 3
+    sizes = route_sizes(args.tiny)
+    n_test = sizes["n_test"]
+    full_route = TINY_FULL_ROUTE if args.tiny else FULL_ROUTE
+    # the seed's test places: after its 2,500 training places and a gap of 100
+    first_test = sizes["n_train"] + sizes["gap"]
 
-    n_route = FULL_ROUTE if not args.no_full_route else 2500 + 100 + N_TEST
+    n_route = full_route if not args.no_full_route else first_test + n_test
     route = synthetic_route(n_route, ("summer", "fall"), seed=0)
     summer = route.images["summer"].reshape(n_route, -1)
     fall = route.images["fall"].reshape(n_route, -1)
-    test = slice(2600, 2600 + N_TEST)  # the seed's test places: after 2,500 + a gap of 100
-    compare(f"{N_TEST:,} x {N_TEST:,}", fall[test], summer[test], args.ds, args.repeats)
+    test = slice(first_test, first_test + n_test)
+    compare(f"{n_test:,} x {n_test:,}", fall[test], summer[test], args.ds, args.repeats)
     if not args.no_full_route:
         compare(
-            f"{N_TEST:,} x {FULL_ROUTE:,} (full)",
+            f"{n_test:,} x {full_route:,} (full)",
             fall[test],
             summer,
             args.ds,

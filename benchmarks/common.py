@@ -9,7 +9,6 @@ import sys
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 
 from vpr_jax.data.synthetic import synthetic_route
@@ -17,6 +16,8 @@ from vpr_jax.data.synthetic import synthetic_route
 
 def timed(fn, repeats: int) -> tuple[float, float]:
     """(first call seconds, median of ``repeats`` further calls); 0 repeats: first only."""
+    import jax  # here: the peers' processes (peers.py) build the data without loading JAX
+
     start = time.perf_counter()
     jax.block_until_ready(fn())
     first = time.perf_counter() - start
@@ -28,20 +29,44 @@ def timed(fn, repeats: int) -> tuple[float, float]:
     return first, statistics.median(runs) if runs else first
 
 
-def seed_route(n_train: int = 2500, gap: int = 100, n_test: int = 3569):
-    """Summer and fall of the built-in route: the seed's training and test sizes.
+# ``--tiny``, in every script: a run of seconds that exercises the whole script for the
+# tests (tests/test_benchmark_scripts.py), on data too small for its figures to mean anything.
+TINY_HELP = "a seconds-long run for the tests: sizes shrink, the figures mean nothing"
+SEED_SIZES = {"n_train": 2500, "gap": 100, "n_test": 3569, "pixel_step": 1}  # the seed's
+# 300 training images, 100 queries x 100 database, every 8th pixel (256 values: a
+# covariance's eigendecomposition takes milliseconds, not the seconds of 2,048 x 2,048).
+TINY_SIZES = {"n_train": 150, "gap": 10, "n_test": 100, "pixel_step": 8}
+ICA_COMPONENTS, TINY_ICA_COMPONENTS = 256, 8  # FastICA's components in run_all and peers
+
+
+def ica_components(tiny: bool) -> int:
+    return TINY_ICA_COMPONENTS if tiny else ICA_COMPONENTS
+
+
+def route_sizes(tiny: bool, images: bool = False) -> dict[str, int]:
+    """``seed_route``'s keyword arguments: the seed's sizes, or ``--tiny``'s; ``images``:
+    whole images (every pixel), for the auto-encoders."""
+    sizes = dict(TINY_SIZES if tiny else SEED_SIZES)
+    if images:
+        sizes["pixel_step"] = 1
+    return sizes
+
+
+def seed_route(n_train: int = 2500, gap: int = 100, n_test: int = 3569, pixel_step: int = 1):
+    """Summer and fall of the built-in route: the seed's training and test sizes by default
+    (``route_sizes``); ``pixel_step``: every this-many-th value of each flattened image.
 
     Returns (train (2 n_train, 2048): both seasons' training places, database (n_test,
-    2048) summer, queries (n_test, 2048) fall), float32 in [0, 1].
+    2048) summer, queries (n_test, 2048) fall), float32 in [0, 1] (2,048 / ``pixel_step``
+    values an image).
     """
     route = synthetic_route(n_train + gap + n_test, ("summer", "fall"), seed=0)
     summer, fall = route.images["summer"], route.images["fall"]
     train = np.concatenate([summer[:n_train], fall[:n_train]]).reshape(2 * n_train, -1)
-    return (
-        train,
-        summer[n_train + gap :].reshape(n_test, -1),
-        fall[n_train + gap :].reshape(n_test, -1),
-    )
+    db, query = (x[n_train + gap :].reshape(n_test, -1) for x in (summer, fall))
+    if pixel_step == 1:
+        return train, db, query
+    return tuple(np.ascontiguousarray(x[:, ::pixel_step]) for x in (train, db, query))
 
 
 def ratio_row(name: str, ours: float, peer: float, peer_name: str, goal: str) -> None:

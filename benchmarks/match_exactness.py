@@ -1,6 +1,6 @@
 """Does the matcher return numpy brute force's top-10? Every query, every rank, on real frames.
 
-    python benchmarks/match_exactness.py ROOT [--db summer] [--query winter] [--k 10]
+    python benchmarks/match_exactness.py ROOT [--db summer] [--query winter] [--k 10] [--tiny]
 
 ROOT holds one folder of frame-aligned images per season (the layout of
 ``data.source=folders``, e.g. the dev frames). Descriptors are the raw pixels (32x64 grey,
@@ -10,6 +10,8 @@ brute force (``peers.numpy_top_k``: normalise, one product, argpartition, sort) 
 database for every query; the script counts rank positions whose index differs and, for
 each, prints the two scores numpy gives the two indices: a difference between entries
 whose scores agree to float32 rounding is a tie, broken by the order of summation.
+Exit code 1 when any difference is not a tie. ``--tiny`` (for the tests): the first 100
+frames of each season, a PCA of 20 components.
 """
 
 from __future__ import annotations
@@ -18,12 +20,15 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from common import TINY_HELP
 from peers import numpy_top_k
 
 from vpr_jax.data.images import list_images, read_images
 from vpr_jax.encoders import pca
 from vpr_jax.evaluation.matching import top_k_matches
 
+COMPONENTS, REMOVED = 100, 10  # PCA's fit, and the leading components removed
+TINY_FRAMES, TINY_COMPONENTS = 100, 20
 TIE = 1e-6  # scores closer than this (float32 cosines near 1: ~8 ulp) are a tie
 
 
@@ -59,18 +64,21 @@ def main() -> None:
     parser.add_argument("--db", default="summer")
     parser.add_argument("--query", default="winter")
     parser.add_argument("--k", type=int, default=10)
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     args = parser.parse_args()
+    max_frames = TINY_FRAMES if args.tiny else None
+    components = TINY_COMPONENTS if args.tiny else COMPONENTS
     images = {}
     for season in (args.db, args.query):
-        paths = list_images(args.root / season, f"the {season} images")
+        paths = list_images(args.root / season, f"the {season} images")[:max_frames]
         images[season] = read_images(paths, season, resize=True)[0].reshape(len(paths), -1)
     db, query = images[args.db].astype(np.float32), images[args.query].astype(np.float32)
     bad = compare("raw pixels", query, db, args.k)
-    state = pca.fit_pca(db, 100)
+    state = pca.fit_pca(db, components)
     bad += compare(
-        "PCA, 10 components removed",
-        np.asarray(pca.suffix_descriptors(state, query))[:, 10:],
-        np.asarray(pca.suffix_descriptors(state, db))[:, 10:],
+        f"PCA, {REMOVED} components removed",
+        np.asarray(pca.suffix_descriptors(state, query))[:, REMOVED:],
+        np.asarray(pca.suffix_descriptors(state, db))[:, REMOVED:],
         args.k,
     )
     raise SystemExit(1 if bad else 0)

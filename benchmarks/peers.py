@@ -1,6 +1,6 @@
 """The peers of the benchmarks, each run in a fresh process on its native BLAS kernel.
 
-    python benchmarks/peers.py TASK [--repeats 3]     # prints one JSON line
+    python benchmarks/peers.py TASK [--repeats 3] [--tiny]     # prints one JSON line
 
 On our machines OPENBLAS_CORETYPE (and OPENBLAS_L2_SIZE) are set and force an older
 OpenBLAS kernel on numpy and scikit-learn (threadpoolctl then reports 'Haswell' where the
@@ -8,7 +8,9 @@ CPU is a SkylakeX): scikit-learn's FastICA took 33 s with them and 13 s without.
 starts this script with both removed from the environment, so a peer runs as it would on a
 machine without them, while our side runs in the benchmark's own process as a user's would.
 Every task builds the same data as the benchmarks (``common.seed_route``) and reports the
-median of warm runs, the first run, and the BLAS libraries threadpoolctl saw.
+median of warm runs, the first run, and the BLAS libraries threadpoolctl saw; with
+``--tiny``, the benchmarks' tiny data (``common.route_sizes(tiny=True)``, FastICA of
+``common.TINY_ICA_COMPONENTS`` components), as their own ``--tiny`` builds it.
 """
 
 from __future__ import annotations
@@ -48,13 +50,15 @@ def ours_report() -> str:
     return f"XLA:CPU; BLAS here: {blas_report()}; forcing variables: {forced}"
 
 
-def run_peer(task: str, repeats: int) -> dict:
-    """Run ``task`` in a fresh process without the kernel-forcing variables; returns its
-    JSON (``seconds``: warm median, ``first``, ``blas``, and task extras)."""
+def run_peer(task: str, repeats: int, tiny: bool = False) -> dict:
+    """Run ``task`` in a fresh process without the kernel-forcing variables (``tiny``: on
+    the tiny data, ``peers.py TASK --tiny``); returns its JSON (``seconds``: warm median,
+    ``first``, ``blas``, and task extras)."""
     env = {k: v for k, v in os.environ.items() if k not in FORCING}
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(HERE)])
+    cmd = [sys.executable, str(HERE / "peers.py"), task, "--repeats", str(repeats)]
     proc = subprocess.run(
-        [sys.executable, str(HERE / "peers.py"), task, "--repeats", str(repeats)],
+        [*cmd, "--tiny"] if tiny else cmd,
         env=env,
         capture_output=True,
         text=True,
@@ -100,15 +104,15 @@ def native_blas_process() -> None:
         os.execve(sys.executable, [sys.executable, *sys.argv], env)
 
 
-def _tasks():
-    from common import seed_route
+def _tasks(tiny: bool):
+    from common import ica_components, route_sizes, seed_route
     from sklearn.decomposition import PCA, FastICA
 
-    train, db, query = seed_route()
+    train, db, query = seed_route(**route_sizes(tiny))
 
     def fastica():
         model = FastICA(
-            256,
+            ica_components(tiny),
             algorithm="parallel",
             whiten="unit-variance",
             whiten_solver="svd",
@@ -136,11 +140,14 @@ TASKS = ("pca_covariance_eigh", "pca_randomized_100", "fastica_256", "numpy_top_
 
 
 def main() -> None:
+    from common import TINY_HELP
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("task", choices=TASKS)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     args = parser.parse_args()
-    fn, repeats = _tasks()[args.task]
+    fn, repeats = _tasks(args.tiny)[args.task]
     first, seconds = _timed(fn, args.repeats if repeats is None else repeats)
     print(
         json.dumps({"task": args.task, "seconds": seconds, "first": first, "blas": blas_report()})

@@ -1,7 +1,7 @@
 """Every method on real frames, in one table: raw, PCA, diff_pca, ICA, LDA, and the FAE and
 CAE with each objective, single images (ds = 1) and sequences of ten (ds = 10).
 
-    python benchmarks/real_data.py DATA_ROOT [--seasons summer,winter] [KEY=VALUE ...]
+    python benchmarks/real_data.py DATA_ROOT [--seasons summer,winter] [--tiny] [KEY=VALUE ...]
 
 DATA_ROOT holds one folder of frame-aligned images per season (``data.source=folders``:
 any size, the frame number in each file name), e.g. ``../shared/data/nordland_dev`` with
@@ -15,6 +15,10 @@ the removed-PC count with the best single-image recall@1 (chosen on the test que
 optimistic), recall@1, AUC-PR, R@100P and recall@10 of single images, recall@1 of
 sequences of ten, and the fit's seconds. Any further ``KEY=VALUE`` goes to the sweep as
 it is (e.g. ``fae.epochs=100 train.augment=false``).
+
+``--tiny`` (for the tests): 60 training places, a 4-frame gap and 30 test places unless the
+options name others (a DATA_ROOT of 94 frames a season serves), and ``TINY_OVERRIDES``
+(tiny models, one epoch, two removed-PC counts) before any KEY=VALUE given.
 """
 
 from __future__ import annotations
@@ -28,10 +32,23 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from common import TINY_HELP  # noqa: E402
+
 from vpr_jax.method_table import NAMES  # noqa: E402
-from vpr_jax.outputs.results import read_results, selected_rows, sweeps_removed_pcs  # noqa: E402
+from vpr_jax.outputs.results import has_setting, read_results, selected_rows  # noqa: E402
 
 ORDER = NAMES  # the method table's order; users' methods after it
+SPLIT = {"n_train": 1200, "n_test": 450, "gap": 10}  # the defaults of the options
+TINY_SPLIT = {"n_train": 60, "n_test": 30, "gap": 4}
+TINY_OVERRIDES = [
+    "removed_pcs=[0,5]",
+    "ica.n_components=8",
+    "lda.n_components=8",
+    "fae.hidden=32",
+    "cae.channels=[4,8]",
+    "cae.code_channels=2",
+    "train.epochs=1",
+]
 
 
 def sweep_args(args: argparse.Namespace) -> list[str]:
@@ -50,6 +67,7 @@ def sweep_args(args: argparse.Namespace) -> list[str]:
         "sequence.enabled=true",
         "sequence.ds=[1,10]",
         f"logdir={args.logdir}",
+        *(TINY_OVERRIDES if args.tiny else []),
         *args.overrides,
     ]
 
@@ -75,7 +93,7 @@ def table(rows) -> str:
         sel = chosen[(method, objective, 1)]
         best = max(single, key=lambda r: (r.recall_at_1, -r.removed_pcs))
         seq = chosen.get((method, objective, 10))
-        axis = sweeps_removed_pcs(sel)
+        axis = has_setting(sel, "removed_pcs")
         k = str(sel.removed_pcs) if axis else ""
         ds10 = f"{seq.recall_at_1:.3f}" + (f" (k={seq.removed_pcs})" if axis else "") if seq else ""
         optimistic = f"{best.removed_pcs}: {best.recall_at_1:.3f}" if axis else ""
@@ -93,13 +111,17 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("root", help="folder with one folder of aligned frames per season")
     parser.add_argument("--seasons", default="summer,winter", help="database,query")
-    parser.add_argument("--n-train", type=int, default=1200)
-    parser.add_argument("--n-test", type=int, default=450)
-    parser.add_argument("--gap", type=int, default=10)
+    parser.add_argument("--n-train", type=int, default=None, help="default 1200 (--tiny: 60)")
+    parser.add_argument("--n-test", type=int, default=None, help="default 450 (--tiny: 30)")
+    parser.add_argument("--gap", type=int, default=None, help="default 10 (--tiny: 4)")
     parser.add_argument("--tolerance", type=int, default=1)
     parser.add_argument("--logdir", default="runs/real_data")
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     parser.add_argument("overrides", nargs="*", help="more key=value for the sweep")
     args = parser.parse_intermixed_args()  # key=value may follow the options
+    for key, value in (TINY_SPLIT if args.tiny else SPLIT).items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
     args.logdir = str(Path(args.logdir).expanduser().resolve())  # the sweep runs in REPO
     command = [sys.executable, "-m", "experiments.sweep", *sweep_args(args)]
     env = {**os.environ, "PYTHONPATH": str(REPO)}

@@ -1,6 +1,7 @@
 """Every speed goal in one table, each row a ratio to the peer timed in this same run.
 
     python benchmarks/run_all.py [--repeats 3] [--skip-protocol] [--protocol-args "k=v ..."]
+                                 [--tiny]
 
 Rows (seed's sizes: 5,000 x 2,048 training images, 3,569 queries x 3,569 database):
   PCA fit, every component   vs scikit-learn PCA(svd_solver="covariance_eigh")   <= 1.0x
@@ -29,6 +30,9 @@ FAE, CAE; compilation and data generation included), with its peak RSS. ``--skip
 ``--scaling-plot PATH`` draws the scaling exponents' log-log plot (docs/scaling_speed.png).
 Ours: warm medians of --repeats runs in this process; peers the same, each in a fresh
 process without OPENBLAS_CORETYPE / OPENBLAS_L2_SIZE (``peers.py``: their native kernel).
+``--tiny`` (for the tests; the figures mean nothing): ``common.TINY_SIZES`` on both sides,
+FastICA of 8 components, one warm run, the protocol on a tiny route (``TINY_PROTOCOL``),
+scaling at ``scaling.TINY_FRAMES``, and no whole-route row.
 """
 
 from __future__ import annotations
@@ -45,9 +49,10 @@ from bench_autoencoders import MODELS as AE_MODELS
 from bench_ica import fit_ours as fit_ica
 from bench_linear import REMOVED_PCS
 from bench_sequence import measure as measure_sequence
-from common import seed_route, sweep_in_fresh_process, timed
+from common import TINY_HELP, ica_components, route_sizes, seed_route, sweep_in_fresh_process, timed
 from peers import FORCING, ours_report, run_peer
-from scaling import FULL_ROUTE
+from scaling import FRAMES as SCALING_FRAMES
+from scaling import TINY_FRAMES as TINY_SCALING_FRAMES
 from scaling import measure as measure_scaling
 from scaling import plot as plot_scaling
 
@@ -64,7 +69,20 @@ SEED_TABLE_4_S = sum(
 )
 PROTOCOL_GOAL_S = 300.0
 FULL_ROUTE_GOAL_GIB = 2.5
-ICA_COMPONENTS = 256
+# --tiny's protocol: preset=paper on a 400-place route (4,000 frames, every 10th), one pair,
+# a linear and a trained method, two removed-PC counts, a tiny FAE trained for one epoch:
+# seconds, not minutes (each method compiles its own programs).
+TINY_PROTOCOL = [
+    "data.n_frames=4000",
+    "split.n_train=150",
+    "split.n_test=60",
+    "split.gap=100",
+    "season_pairs=summer-fall",
+    "methods=[pca,fae]",
+    "removed_pcs=[0,5]",
+    "fae.hidden=32",
+    "train.epochs=1",
+]
 
 
 class Table:
@@ -91,13 +109,14 @@ class Table:
                 print("  ".join("-" * w for w in widths))
 
 
-def linear_rows(table: Table, train, db, query, repeats: int) -> None:
-    peer = run_peer("pca_covariance_eigh", repeats)
+def linear_rows(table: Table, train, db, query, repeats: int, tiny: bool) -> None:
+    """The linear methods' and matching's rows; ``tiny``: the peers build the tiny data."""
+    peer = run_peer("pca_covariance_eigh", repeats, tiny)
     print(f"  peers' BLAS (run without {', '.join(FORCING)}): {peer['blas']}")
     print(f"  ours: {ours_report()}", flush=True)
     _, ours = timed(lambda: pca.fit_pca(train, solver="covariance"), repeats)
     table.add(
-        "PCA fit, every component, 5,000 x 2,048",
+        f"PCA fit, every component, {train.shape[0]:,} x {train.shape[1]:,}",
         ours,
         peer["seconds"],
         "sklearn covariance_eigh",
@@ -107,7 +126,7 @@ def linear_rows(table: Table, train, db, query, repeats: int) -> None:
     table.add(
         "PCA fit, 100 components",
         ours,
-        run_peer("pca_randomized_100", repeats)["seconds"],
+        run_peer("pca_randomized_100", repeats, tiny)["seconds"],
         "sklearn randomized",
         1.0,
     )
@@ -124,20 +143,22 @@ def linear_rows(table: Table, train, db, query, repeats: int) -> None:
     _, one_k = timed(lambda: sweep((50,)), repeats)
     table.add(f"removed-PC sweep, {len(REMOVED_PCS)} counts", all_k, one_k, "one count", 1.2)
 
-    _, ours = timed(lambda: fit_ica(train, ICA_COMPONENTS), max(1, repeats // 2))
+    n_ics = ica_components(tiny)
+    _, ours = timed(lambda: fit_ica(train, n_ics), max(1, repeats // 2))
     table.add(
-        f"FastICA, {ICA_COMPONENTS} components",
+        f"FastICA, {n_ics} components",
         ours,
-        run_peer("fastica_256", repeats)["seconds"],
+        run_peer("fastica_256", repeats, tiny)["seconds"],
         "sklearn parallel",
         0.125,
     )
 
     _, ours = timed(lambda: top_k_matches(query, db, 10), repeats)
+    size = f"{len(query):,} x {len(db):,}"
     table.add(
-        "matching, top-10 of 3,569 x 3,569",
+        f"matching, top-10 of {size}",
         ours,
-        run_peer("numpy_top_k", repeats)["seconds"],
+        run_peer("numpy_top_k", repeats, tiny)["seconds"],
         "numpy brute force",
         0.9,
     )
@@ -147,7 +168,7 @@ def linear_rows(table: Table, train, db, query, repeats: int) -> None:
     table.add("  the same vs the bare product", ours, bare, "jnp q @ db.T", 1.15)
     seq = measure_sequence(query, db, 10, repeats)
     table.add(
-        "sequence matching ds=10, 3,569 x 3,569",
+        f"sequence matching ds=10, {size}",
         seq["ours"],
         seq["peer"],
         "numpy loop over queries",
@@ -157,11 +178,9 @@ def linear_rows(table: Table, train, db, query, repeats: int) -> None:
     both = np.concatenate([db, query])
     _, enc = timed(lambda: pca.suffix_descriptors(state, both), repeats)
     table.add("encode PCA", 1000 * enc / len(both), 0.1, "seed Table 5", 1.0, "ms")
-    ica_state = fit_ica(train, ICA_COMPONENTS)
+    ica_state = fit_ica(train, n_ics)
     _, enc = timed(lambda: ica.encode(ica_state, both), repeats)
-    table.add(
-        f"encode ICA ({ICA_COMPONENTS})", 1000 * enc / len(both), 0.3, "seed Table 5", 1.0, "ms"
-    )
+    table.add(f"encode ICA ({n_ics})", 1000 * enc / len(both), 0.3, "seed Table 5", 1.0, "ms")
 
 
 def encoder_rows(table: Table, db, query, repeats: int) -> None:
@@ -179,19 +198,24 @@ def encoder_rows(table: Table, db, query, repeats: int) -> None:
         table.add(f"encode {name}", ms, seed_ms, "seed Table 5", 0.1, "ms")
 
 
-def protocol_row(table: Table, extra: list[str]) -> None:
+def protocol_row(table: Table, extra: list[str], tiny: bool) -> None:
+    """``preset=paper`` (``tiny``: on ``TINY_PROTOCOL``'s route) with ``extra`` overrides."""
     with tempfile.TemporaryDirectory(prefix="vpr_jax-bench-") as tmp:
         logdir = Path(tmp) / "paper"
-        wall, peak = sweep_in_fresh_process(["preset=paper", *extra], logdir)
+        args = ["preset=paper", *(TINY_PROTOCOL if tiny else []), *extra]
+        wall, peak = sweep_in_fresh_process(args, logdir)
         rows = read_results(logdir / "results.csv")
     from experiments.resolve import load
+    from vpr_jax.methods.contract import needs_of
 
-    trained = {m for m, info in METHODS.items() if "training" in load(info).uses}
+    # needs of the default settings: whether a method trains does not depend on them
+    trained = {m for m, info in METHODS.items() if "training" in needs_of(load(info), None)}
     by_method: dict[str, float] = {}
     for row in rows:  # the trained methods' fit is their training; the linear fits are small
         seconds = row.fit_seconds if row.method in trained else 0.0
         by_method[row.method] = by_method.get(row.method, 0.0) + seconds
-    label = "paper protocol" + (f" ({' '.join(extra)})" if extra else "")
+    label = "paper protocol" + (", tiny" if tiny else "")
+    label += f" ({' '.join(extra)})" if extra else ""
     table.add(label, wall, PROTOCOL_GOAL_S, "goal: 5 min", 1.0)
     table.add("  the same vs the seed's Table 4", wall, SEED_TABLE_4_S, "seed, 14 h 50 min", 1.0)
     print(
@@ -215,8 +239,8 @@ def full_route_row(table: Table) -> None:
     print(f"  preset=full took {wall:.0f} s")
 
 
-def scaling_rows(table: Table, repeats: int, plot_path: Path | None) -> None:
-    result = measure_scaling([1000, 4000, 16000, FULL_ROUTE], repeats)
+def scaling_rows(table: Table, repeats: int, plot_path: Path | None, frames) -> None:
+    result = measure_scaling(list(frames), repeats)
     if plot_path is not None:
         plot_scaling(result, plot_path)
     fits = result["exponents"]
@@ -226,7 +250,9 @@ def scaling_rows(table: Table, repeats: int, plot_path: Path | None) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3, help="warm runs per timing (median)")
+    parser.add_argument(
+        "--repeats", type=int, default=None, help="warm runs per timing (median; 3, --tiny: 1)"
+    )
     parser.add_argument(
         "--skip-protocol",
         action="store_true",
@@ -246,7 +272,10 @@ def main() -> None:
         default="",
         help="extra key=value overrides for the paper protocol, space-separated",
     )
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     args = parser.parse_args()
+    if args.repeats is None:
+        args.repeats = 1 if args.tiny else 3
     start = time.perf_counter()
     device = jax.devices()[0]
     print(
@@ -255,16 +284,21 @@ def main() -> None:
         flush=True,
     )
 
-    train, db, query = seed_route()
     table = Table()
-    linear_rows(table, train, db, query, args.repeats)
+    train, db, query = seed_route(**route_sizes(args.tiny))
+    linear_rows(table, train, db, query, args.repeats, args.tiny)
+    if args.tiny:  # the linear rows' tiny data keep every 8th pixel: whole images here
+        _, db, query = seed_route(**route_sizes(args.tiny, images=True))
     encoder_rows(table, db, query, args.repeats)
     if not args.skip_protocol:
-        protocol_row(table, args.protocol_args.split())
-    if not args.skip_full_route:
+        protocol_row(table, args.protocol_args.split(), args.tiny)
+    if args.tiny and not args.skip_full_route:
+        print("  whole route (preset=full) peak RSS: left out with --tiny (minutes, GiB)")
+    elif not args.skip_full_route:
         full_route_row(table)
     if not args.skip_scaling:
-        scaling_rows(table, max(1, args.repeats // 2), args.scaling_plot)
+        frames = TINY_SCALING_FRAMES if args.tiny else SCALING_FRAMES
+        scaling_rows(table, max(1, args.repeats // 2), args.scaling_plot, frames)
     print()
     table.print()
     print(f"\ntotal {time.perf_counter() - start:.0f} s")

@@ -4,7 +4,7 @@ Each is measured against the route's length, and the exponent of each fitted on 
 scale.
 
     python benchmarks/scaling.py [--frames 1000,4000,16000,35768] [--repeats 2]
-                                 [--plot docs/scaling_speed.png]
+                                 [--plot docs/scaling_speed.png] [--tiny]
 
 Matching: the database is every frame of the built-in route's summer (n frames, raw pixels,
 2,048 values), the queries every 10th frame of its fall, so queries grow with the route and
@@ -21,7 +21,8 @@ start and the route's generation included) and peak RSS. Its time grows faster t
 35,768 frames lies between.
 
 Prints one line per measurement and one per fitted exponent; ``--plot`` draws both on
-log-log axes.
+log-log axes. ``--tiny`` (for the tests): lengths 200 and 400 (``TINY_FRAMES``) unless
+``--frames`` names others, one warm run.
 """
 
 from __future__ import annotations
@@ -36,11 +37,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import sweep_in_fresh_process
+from common import TINY_HELP, sweep_in_fresh_process
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 FULL_ROUTE = 35_768
+FRAMES = (1000, 4000, 16000, FULL_ROUTE)  # route lengths measured
+TINY_FRAMES = (200, 400)  # --tiny's
 QUERY_STEP = 10
 PROCESS_TIMEOUT_S = 1800
 
@@ -196,11 +199,21 @@ def plot(result: dict, path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", default=f"1000,4000,16000,{FULL_ROUTE}")
-    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument(
+        "--frames",
+        default=None,
+        help=f"route lengths ({','.join(map(str, FRAMES))}; --tiny: "
+        f"{','.join(map(str, TINY_FRAMES))})",
+    )
+    parser.add_argument("--repeats", type=int, default=None, help="warm runs (2; --tiny: 1)")
     parser.add_argument("--plot", type=Path, default=None)
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     parser.add_argument("--match-one", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.repeats is None:
+        args.repeats = 1 if args.tiny else 2
+    if args.frames is None:
+        args.frames = ",".join(map(str, TINY_FRAMES if args.tiny else FRAMES))
     if args.match_one is not None:
         print(json.dumps(match_once(args.match_one, args.repeats)))
         return

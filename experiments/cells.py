@@ -1,16 +1,17 @@
 """One sweep cell, in one direction: a method's descriptors -> matches -> metrics -> its
 TensorBoard run and results.csv row.
 
-A cell is (season pair, method, objective, setting, removed-PC count, sequence length ds,
-seed); the objective is the auto-encoders' (empty for the other methods), the setting the
-method's swept settings. ``match`` turns descriptors into each query's top-K database
-matches: for ds = 1 one blockwise cosine pass scores every cell's feature suffix at once (a
-removed-PC count's); for ds > 1 sequence matching runs on one suffix. ``save_cell``
+A cell is (season pair, method, objective, swept settings, sequence length ds, seed), its
+run's name; the objective is the auto-encoders' (empty for the other methods). ``match``
+turns descriptors into each query's top-K database matches: for ds = 1 one blockwise cosine
+pass scores every cell's feature suffix at once (a removed-PC count's); for ds > 1
+sequence matching runs on one suffix. ``save_cell``
 evaluates the matches and writes the cell.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from collections.abc import Callable
@@ -29,7 +30,7 @@ from vpr_jax.evaluation.metrics import Evaluation, evaluate_matches
 from vpr_jax.evaluation.sequence import sequence_top_k_cosine, velocities
 from vpr_jax.files import replace_folder
 from vpr_jax.methods.descriptors import Descriptors, Part
-from vpr_jax.outputs.results import ResultRow, append_results, sweeps_removed_pcs
+from vpr_jax.outputs.results import ResultRow, append_results, sweep_columns, sweep_labels
 from vpr_jax.outputs.tb import match_examples, write_cell_run
 from vpr_jax.progress import Log
 
@@ -124,7 +125,7 @@ def _write_run(
             "method": desc.method,
             "objective": desc.objective,
             "setting": desc.parts[cell].setting,
-            "removed_pcs": float(desc.parts[cell].removed_pcs),
+            **{k: float(v) for k, v in sweep_columns(desc.parts[cell].settings).items()},
             "ds": float(ds),
             "seed": float(desc.seed),
         },
@@ -231,7 +232,8 @@ def save_cell(
         method=desc.method,
         objective=desc.objective,
         setting=part.setting,
-        removed_pcs=part.removed_pcs,
+        settings=json.dumps(part.settings),
+        **sweep_columns(part.settings),
         ds=ds,
         **ev.scalars(),
         recall_at_1_ci_low=ci.recall_at_1.low,
@@ -258,7 +260,7 @@ def log_cell(log: Log, counter: str, row: ResultRow, warning: str | None, cfg_se
     """One plain line per finished cell (and its descriptors' warning, if any)."""
     k_text = f" {row.objective}" if row.objective else ""
     k_text += f" {row.setting}" if row.setting else ""
-    k_text += f" k={row.removed_pcs}" if sweeps_removed_pcs(row) else ""
+    k_text += "".join(f" {label}" for label in sweep_labels(row))
     k_text += f" seed={row.seed}" if row.seed != cfg_seed else ""
     k_text += f" ds={row.ds}" if row.ds != 1 else ""
     iters = f"  {row.n_iter} iterations" if row.n_iter else ""

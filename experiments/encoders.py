@@ -58,8 +58,7 @@ def format_listing(rows: list[dict]) -> str:
 
 def _setting(row: dict) -> str:
     parts = [
-        row["setting"],
-        f"k={row['removed_pcs']}" if row["removed_pcs"] not in ("", "0") else "",
+        row["cell"] if row["cell"] != row["setting"] else row["setting"],
         f"seed {row['seed']}" if row["seed"] not in ("", "0") else "",
     ]
     return " ".join(p for p in parts if p)

@@ -18,13 +18,21 @@ from experiments.plan import Plan, make_plan
 from experiments.run import load_pair
 from vpr_jax.config import SweepConfig, config_from_dict
 from vpr_jax.data.pair import PairData
-from vpr_jax.encoders.saved import FIT_JSON, stored_encoder, suite_version
+from vpr_jax.encoders.saved import FIT_JSON, suite_version
 from vpr_jax.errors import UserError
 from vpr_jax.files import replace_folder
 from vpr_jax.methods.descriptors import Descriptors, Part
+from vpr_jax.methods.loading import stored_encoder
 from vpr_jax.outputs import export as files
 from vpr_jax.outputs.logdir import config_yaml, saved_config
-from vpr_jax.outputs.results import ResultRow, read_results, selected_rows, sweeps_removed_pcs
+from vpr_jax.outputs.results import (
+    SWEEP_KEYS,
+    ResultRow,
+    cell_name,
+    read_results,
+    selected_rows,
+    settings_of,
+)
 from vpr_jax.progress import Log
 
 # README.txt lines of a single-image cell: its hloc file and how hloc reads it
@@ -68,14 +76,15 @@ def _single_image_run(row: ResultRow) -> str:
     return row.run.removesuffix(ds) if row.ds != 1 else row.run
 
 
-def folder_name(row: ResultRow, all_settings: bool) -> str:
-    """The cell's run name less its pair; less the removed-PC count too unless
-    ``all_settings`` (``pca``, ``pca_k005``, ``fae_cross_season``, ``lda_ds10``)."""
-    name = row.run.split("/", 1)[1]
-    if all_settings or not sweeps_removed_pcs(row):
-        return name
+def folder_name(row: ResultRow, all_settings: bool, data_seed: int) -> str:
+    """The cell's run name less its pair; less the sweep's keys (the removed-PC count) too
+    unless ``all_settings`` (``pca``, ``pca_k005``, ``fae_cross_season``, ``lda_ds10``)."""
+    if all_settings:
+        return row.run.split("/", 1)[1]
+    swept = tuple((n, v) for n, v in settings_of(row).items() if n not in SWEEP_KEYS)
+    seed = row.seed if row.seed != data_seed else None
     ds = f"_ds{row.ds:02d}" if row.ds != 1 else ""
-    return name.removesuffix(f"_k{row.removed_pcs:03d}{ds}") + ds
+    return cell_name(row.method, row.objective, swept, seed) + ds
 
 
 def export(logdir: Path, out: Path, *, top_k: int, all_settings: bool, log: Log) -> Path:
@@ -93,7 +102,7 @@ def export(logdir: Path, out: Path, *, top_k: int, all_settings: bool, log: Log)
             continue
         pair = load_pair(plan, db, query)
         for row in sorted(mine, key=lambda r: r.run):
-            name = folder_name(row, all_settings)
+            name = folder_name(row, all_settings, plan.cfg.seed)
             saved = encoders.get(_single_image_run(row))
             recall = export_cell(plan, pair, row, saved, out, name, top_k)
             log(f"{pair.name}/{name}: recall@1 {recall:.3f} (sweep: {row.recall_at_1:.3f})")
@@ -143,7 +152,7 @@ def export_cell(
         method=row.method,
         objective=row.objective,
         seed=row.seed,
-        parts=(Part(setting=row.setting, removed_pcs=row.removed_pcs, run=name),),
+        parts=(Part(settings=settings_of(row), setting=row.setting, run=name),),
         starts=(0,),
         db=db,
         query=query,
@@ -165,7 +174,7 @@ def export_cell(
         selection = {
             "chosen": saved[1],
             "setting": row.setting,
-            "removed_pcs": row.removed_pcs,
+            "swept": settings_of(row),
             "val_recall_at_1": row.val_recall_at_1,
             "test_recall_at_1": row.recall_at_1,
             "selected": bool(row.selected),
@@ -180,8 +189,8 @@ def export_cell(
 
 
 def _facts(plan: Plan, top_k, pair: PairData, row: ResultRow, folder, recall: float, shape) -> dict:
-    named = [row.setting, f"removed_pcs={row.removed_pcs}" if sweeps_removed_pcs(row) else ""]
-    setting = " ".join(x for x in named if x) or "-"
+    keys = [f"{k}={v}" for k, v in settings_of(row).items() if k in SWEEP_KEYS]
+    setting = " ".join(x for x in (row.setting, *keys) if x) or "-"
     return {
         "exported from": f"{plan.logdir} (run {row.run})",
         "suite version": suite_version(),

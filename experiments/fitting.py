@@ -24,19 +24,22 @@ from jax.sharding import Mesh
 
 from experiments.plan import Plan
 from experiments.resolve import Fit, Served
+from experiments.resolve import needs as resolve_needs
 from vpr_jax.data.pair import PairData
 from vpr_jax.data.preprocess import describe_preprocessing
 from vpr_jax.encoders.saved import save_fitted, suite_version
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.method_table import MethodInfo
 from vpr_jax.methods.contract import (
+    SERVED,
+    SUFFIX,
     NotScored,
     PCAFit,
     Report,
     Training,
     Validation,
+    axes_of,
     report_of,
-    suffix_of,
 )
 from vpr_jax.methods.descriptors import (
     Descriptors,
@@ -47,6 +50,7 @@ from vpr_jax.methods.descriptors import (
     encode_validation,
     timed,
 )
+from vpr_jax.methods.settings import as_dict
 from vpr_jax.outputs.tb import TrainingRun
 from vpr_jax.progress import Log
 from vpr_jax.sharding import to_host
@@ -65,17 +69,18 @@ class PairRun(NamedTuple):
     shared: dict  # the pair's shared PCA fit, once made: {"pca_fit": PCAFit}
 
 
-def _pca_fit(fit: Fit, run: PairRun) -> PCAFit | None:
-    """The pair's shared PCA fit, or None for a fit whose method declares it needs no
-    component (``pca_components``). The fit is made on first use, ``Plan.pca_components``
-    components whichever methods use it, so each user gets what it would get alone."""
-    method = fit.method.method
-    if method.pca_components is not None:
-        if method.pca_components(fit.settings, run.plan.training_sets[fit.method.name]) <= 0:
-            return None
-    declared, settings = run.plan.shared_fit
-    if "pca_fit" not in run.shared:
-        asked = run.plan.pca_components
+def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
+    """The pair's shared PCA fit: the offering method's own cells get it with their
+    settings, every other method with the offering method's first; made on first use and
+    kept per settings, whichever methods use it, so each user gets what it would get
+    alone."""
+    declared, provider = run.plan.shared["pca_fit"]
+    own = fit.method.info == provider.info
+    settings = fit.settings if own else provider.combinations[0].settings
+    key = fit_key(provider.method, settings)
+    if key not in run.shared:
+        n_images, n_pixels = len(run.data.train), int(np.prod(run.data.train.shape[1:]))
+        asked = declared.components(settings, n_images, n_pixels)
         state, seconds = timed(
             lambda x: declared.fit(x, asked, settings, run.mesh, run.plan.cfg.seed),
             run.data.train,
@@ -84,32 +89,37 @@ def _pca_fit(fit: Fit, run: PairRun) -> PCAFit | None:
         if held < asked:
             run.log(
                 f"note: {run.data.name}: the PCA fit holds {held} of the {asked} components "
-                f"asked: {len(run.data.train)} training images of numerical rank {held} "
-                "(repeated or constant frames); counts beyond it are left out "
+                f"asked: {n_images} training images of numerical rank {held} (repeated or "
+                "constant frames); counts beyond it are left out "
                 "(docs/methods.md#pca-on-any-training-set)"
             )
-        run.shared["pca_fit"] = PCAFit(
-            state=state, seconds=seconds, removed_pcs=run.plan.cfg.removed_pcs, asked=asked
-        )
-    return run.shared["pca_fit"]
+        run.shared[key] = PCAFit(state=state, seconds=seconds, asked=asked)
+    return run.shared[key]
+
+
+def fit_key(method, settings: Any) -> str:
+    """What decides a method's fit among its settings: all but those one fit serves."""
+    served = {n for n, kind in axes_of(method, settings).items() if kind in (SERVED, SUFFIX)}
+    values = as_dict(settings)
+    return repr(sorted((n, v) for n, v in values.items() if n not in served))
 
 
 def resources(fit: Fit, run: PairRun) -> dict[str, Any]:
-    """What the fit's method ``uses``, by keyword."""
-    uses, data = fit.method.method.uses, run.data
+    """What the fit's method needs from the runner, by keyword."""
+    needs, data = resolve_needs(fit), run.data
     out: dict[str, Any] = {}
-    if "pca_fit" in uses:
+    if "pca_fit" in needs:
         out["pca_fit"] = _pca_fit(fit, run)
-    if "validation" in uses:
+    if "validation" in needs:
         out["validation"] = Validation(
             images=data.val,
             scores=lambda encode, starts=(0,): run.validate(
                 *encode_validation(encode, data), tuple(starts)
             ),
         )
-    if "training" in uses:
+    if "training" in needs:
         out["training"] = _training(fit, run)
-    if "mesh" in uses:
+    if "mesh" in needs:
         out["mesh"] = run.mesh
     return out
 
@@ -127,33 +137,43 @@ def _training(fit: Fit, run: PairRun) -> Training:
             "method": fit.method.name,
         },
         name=f"{pair} {fit.folder}",
-        settings=cfg.train,
+        checkpoint_every_s=cfg.train.checkpoint_every_s,
     )
 
 
 def _fails(info: MethodInfo, step: str, err: Exception) -> UserError:
+    fix = (
+        "fix it and rerun the same command, the finished cells are kept"
+        if info.plugin
+        else "a fault of the suite: please report it; the finished cells are kept"
+    )
     return UserError(
-        f"method {info.name} ({info.method}): {step} raised {first_line(err)}: fix it and "
-        "rerun the same command, the finished cells are kept (the traceback is in sweep.log)",
+        f"method {info.name} ({info.method}): {step} raised {first_line(err)}: {fix} (the "
+        "traceback is in sweep.log)",
         detail=traceback.format_exc(),
     )
 
 
-def checked_encode(info: MethodInfo, encode: Callable) -> Callable:
-    """A user's ``encode`` jitted, its output checked: one row per image, two dimensions,
-    finite."""
-    jitted = jax.jit(encode)
+def checked_encode(info: MethodInfo, encode: Callable, jit: bool = True) -> Callable:
+    """A method's ``encode`` (jitted for a user's: the contract asks for a jittable one),
+    its output checked: one row per image, two dimensions, at least one feature, finite.
+    The same for every method, built-in or a user's."""
+    call = jax.jit(encode) if jit else encode
 
     def run(state, images):
         try:
-            out = jitted(state, jnp.asarray(images))
-        except Exception as err:  # the user's code
+            out = call(state, jnp.asarray(images))
+        except UserError:
+            raise
+        except Exception as err:  # the method's code
+            if isinstance(err, OSError) and not info.plugin:
+                raise
             raise _fails(info, "encode", err) from None
         shape = getattr(out, "shape", None)
-        if shape is None or len(shape) != 2 or shape[0] != len(images):
+        if shape is None or len(shape) != 2 or shape[0] != len(images) or shape[1] < 1:
             raise UserError(
                 f"method {info.name} ({info.method}): encode gave shape {shape} for "
-                f"{len(images)} images: return one row per image, (n, d)"
+                f"{len(images)} images: return one row per image, (n, d) with d >= 1"
             )
         if not bool(jnp.isfinite(out).all()):
             raise UserError(
@@ -168,10 +188,8 @@ def checked_encode(info: MethodInfo, encode: Callable) -> Callable:
 def _encoder(fit: Fit, state: Any, served: dict) -> Callable:
     """``images -> descriptors`` of the fit's state for one set of served values."""
     info, encode = fit.method.info, fit.method.method.encode
-    if info.plugin:
-        checked = checked_encode(info, functools.partial(encode, **served))
-        return lambda x: checked(state, x)
-    return lambda x: encode(state, x, **served)
+    checked = checked_encode(info, functools.partial(encode, **served), jit=info.plugin)
+    return lambda x: checked(state, x)
 
 
 def run_fit(fit: Fit, run: PairRun) -> tuple[Any, float, float]:
@@ -184,9 +202,9 @@ def run_fit(fit: Fit, run: PairRun) -> tuple[Any, float, float]:
         state, seconds = timed(lambda: method.fit(data.train, aligned, key, **fit.values, **given))
     except (UserError, NotScored):
         raise
-    except Exception as err:
-        if not info.plugin:
-            raise
+    except Exception as err:  # the method's code, a built-in's or a user's
+        if isinstance(err, OSError) and not info.plugin:
+            raise  # the disk's fault, not the method's: sweep.main says which
         raise _fails(info, "fit", err) from None
     shared = given.get("pca_fit")
     return state, seconds, shared.seconds if shared is not None else 0.0
@@ -211,7 +229,7 @@ def save_state(fit: Fit, state: Any, run: PairRun) -> None:
         "settings": dict(fit.values),
         "serves": serves,
         "cells": [
-            {"run": p.run, "setting": p.setting, "removed_pcs": p.removed_pcs, "served": p.values}
+            {"run": p.run, "setting": p.setting, "settings": p.settings, "served": p.values}
             for p in fit.served
         ],
         "seed": fit.seed,
@@ -255,7 +273,8 @@ def describe_fit(fit: Fit, parts: tuple[Served, ...], run: PairRun) -> Iterator[
     parts, reports = _scored_parts(fit, parts, state, run)
     if not parts:
         return
-    suffix = suffix_of(fit.method.method, fit.settings)
+    kinds = axes_of(fit.method.method, fit.settings)
+    suffix = next((n for n, kind in kinds.items() if kind == SUFFIX), "")
     if suffix:
         starts = tuple(int(p.values[suffix]) for p in parts)
         base = {**parts[0].values, suffix: 0}  # the whole descriptors: every suffix of them
@@ -281,7 +300,7 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
         method=fit.method.name,
         objective=fit.objective,
         seed=fit.seed,
-        parts=tuple(Part(setting=p.setting, removed_pcs=p.removed_pcs, run=p.run) for p in parts),
+        parts=tuple(Part(settings=p.settings, setting=p.setting, run=p.run) for p in parts),
         starts=starts,
         db=db,
         query=query,

@@ -18,6 +18,7 @@ from experiments import resolve  # loads each method's module (JAX) only when it
 from vpr_jax.config import (
     BENCHMARK_PAIRS,
     BENCHMARK_SOURCES,
+    MeshConfig,
     SequenceConfig,
     SweepConfig,
     plain,
@@ -26,7 +27,7 @@ from vpr_jax.data import SEASON_ORDER, Benchmark, Route, load_data, load_train_r
 from vpr_jax.data.precomputed import OutsideSide, read_precomputed
 from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
-from vpr_jax.errors import UserError
+from vpr_jax.errors import UserError, first_line
 from vpr_jax.method_table import NAMES as METHOD_NAMES
 from vpr_jax.methods.contract import SharedFit, TrainingSet
 from vpr_jax.methods.settings import effective
@@ -47,9 +48,10 @@ class Plan(NamedTuple):
     fits: tuple[resolve.Fit, ...] = ()  # every method's fits in each pair, in order
     outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed set -> side -> descriptors
     training_sets: dict[str, TrainingSet] = {}  # method -> what its checks saw
-    pca_components: int = 0  # of the pairs' shared PCA fit (0: no method uses it)
-    shared_fit: tuple[SharedFit, Any] | None = None  # its declaration and settings
+    shared: dict[str, tuple[SharedFit, resolve.Resolved]] = {}  # resource -> the fit a
+    # pair shares and the method that offers it (resolve.shared_fits)
     identity: dict = {}  # the config's part that decides every cell (outputs.logdir)
+    mesh: Any = None  # the devices, a jax Mesh (start_devices); None: one device
 
     def describe(self) -> str:
         """What the sweep runs on, for the run log's first line."""
@@ -153,15 +155,18 @@ def make_plan(
     aligned = cfg.data.aligned_training
     _note_unused_settings(cfg, given, log)
     methods = resolve.resolve_methods(cfg, aligned, cfg.data.source, asked)
-    shared_fit = resolve.shared_fit_settings(cfg)
+    _check_baseline(cfg, methods, given)
+    shared = resolve.shared_fits(cfg)
     data = _load(cfg, benchmark, log)
+    mesh = start_devices(cfg.mesh, log)
     n_images, n_pixels = data.n_train, data.n_pixels
+    held = shared_components(shared, n_images, n_pixels)
     sets = {
-        r.name: resolve.training_set(cfg, n_images, n_pixels, aligned, r, given, asked)
+        r.name: resolve.training_set(
+            r, n_images, n_pixels, aligned, given, asked, held, mesh_size(mesh)
+        )
         for r in methods
     }
-    cfg = resolve.trim_removed(cfg, methods, sets, given, log)
-    sets = {name: ts._replace(removed_pcs=cfg.removed_pcs) for name, ts in sets.items()}
     methods = resolve.check_training_set(methods, sets, log)
     cfg = _with_effective_settings(cfg, methods)
     check_same_config(logdir, cfg, lambda saved: resolve.settings_identities(saved))
@@ -176,10 +181,64 @@ def make_plan(
         fits=tuple(f for r in methods for f in resolve.fits(r, cfg)),
         outside=read_outside_sets(cfg, data.benchmark) if data.benchmark is not None else {},
         training_sets=sets,
-        pca_components=_pca_components(methods, sets, shared_fit, n_images, n_pixels),
-        shared_fit=shared_fit,
+        shared=shared,
         identity=identity(cfg),
+        mesh=mesh,
     )
+
+
+def shared_components(shared: dict, n_images: int, n_pixels: int) -> int:
+    """The components the pair's shared PCA fit holds for the methods that need it (with
+    the offering method's first settings)."""
+    declared, provider = shared["pca_fit"]
+    return declared.components(provider.combinations[0].settings, n_images, n_pixels)
+
+
+def _check_baseline(cfg: SweepConfig, methods, given: frozenset[str]) -> None:
+    """A baseline named on the command line must be in the sweep."""
+    names = {r.name for r in methods} | set(cfg.precomputed)
+    if "baseline" in given and cfg.baseline not in names:
+        raise UserError(
+            f"baseline={cfg.baseline} is not in this sweep: choose one of "
+            f"{', '.join(sorted(names))} (results.md's paired differences are to it)"
+        )
+
+
+def mesh_size(mesh) -> int:
+    """Devices of a mesh (None: one)."""
+    return 1 if mesh is None else int(mesh.devices.size)
+
+
+def start_devices(cfg: MeshConfig, log: Log):
+    """Join the other processes (``mesh.distributed``), then build the device mesh: before
+    the methods' checks, which ask how many devices a batch splits over."""
+    import jax
+
+    from vpr_jax.sharding import make_mesh
+
+    if cfg.distributed:
+        # CPU devices of several processes talk through gloo; GPUs use NCCL regardless.
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+        try:
+            jax.distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
+        except (RuntimeError, ValueError) as err:
+            raise UserError(
+                f"mesh.distributed=true could not join the other processes ({first_line(err)}): "
+                "start one process per host under a launcher JAX detects (SLURM, Open MPI), or "
+                "set mesh.coordinator=HOST:PORT, mesh.num_processes and mesh.process_id"
+            ) from None
+    try:
+        mesh = make_mesh(cfg.devices)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    if mesh is not None:
+        devices = mesh.devices.flat
+        log(
+            f"mesh: {mesh_size(mesh)} {devices[0].platform} devices in "
+            f"{jax.process_count()} process(es); PCA samples, matching database and "
+            "training batches are split over them"
+        )
+    return mesh
 
 
 def _note_unused_settings(cfg: SweepConfig, given: frozenset[str], log: Log) -> None:
@@ -254,30 +313,10 @@ def _with_effective_settings(cfg: SweepConfig, methods) -> SweepConfig:
     fitted to the training set, axes as lists): what config.yaml records."""
     builtin, plugins = {}, dict(cfg.plugin)
     for r in methods:
-        given = resolve.given_settings(cfg, r.info)
+        given = resolve.given_settings(cfg, r.info, r.method)
         settings = plain(effective(r.method.settings, list(r.combinations), given))
         if r.info.plugin:
             plugins[r.name] = settings
         else:
             builtin[r.name] = settings
     return dataclasses.replace(cfg, plugin=plugins, **builtin)
-
-
-def _pca_components(methods, sets, shared_fit, n_images: int, n_pixels: int) -> int:
-    """The components the pairs' shared PCA fit holds (its own count: the same whichever
-    methods use it), checked against what each user needs; 0 when no method uses it."""
-    users = [r for r in methods if "pca_fit" in r.method.uses]
-    if not users:
-        return 0
-    declared, settings = shared_fit
-    held = declared.components(settings, n_images, n_pixels)
-    for r in users:
-        if r.method.pca_components is None:
-            continue
-        need = max(r.method.pca_components(c.settings, sets[r.name]) for c in r.combinations)
-        if need > held:
-            raise UserError(
-                f"method {r.name} needs {need} components of the pair's PCA fit, which holds "
-                f"{held}: set {declared.fix}"
-            )
-    return held

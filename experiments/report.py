@@ -22,7 +22,9 @@ from vpr_jax.errors import first_line
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
 from vpr_jax.evaluation.metrics import SCALAR_NAMES, pr_curve
 from vpr_jax.files import atomic_write_text, replace_folder
-from vpr_jax.method_table import BASELINE, model_name
+from vpr_jax.method_table import NAMES as METHOD_NAMES
+from vpr_jax.method_table import model_name
+from vpr_jax.methods.settings import label as settings_label
 from vpr_jax.outputs.logdir import ENCODERS_CSV, LISTING, fitted_root
 from vpr_jax.outputs.palette import compare_labels, label_of
 from vpr_jax.outputs.plots import (
@@ -32,6 +34,7 @@ from vpr_jax.outputs.plots import (
     recall_vs_ds_figure,
 )
 from vpr_jax.outputs.results import (
+    SWEEP_KEYS,
     Choice,
     ResultRow,
     baseline_method,
@@ -43,7 +46,8 @@ from vpr_jax.outputs.results import (
     read_results,
     selected_rows,
     selection_reasons,
-    sweeps_removed_pcs,
+    settings_of,
+    sweep_labels,
 )
 from vpr_jax.outputs.tb import CompareSeries, SummaryCell, write_method_run, write_pair_summary
 from vpr_jax.progress import RunLog
@@ -152,10 +156,12 @@ def describe_encoders(root: Path, rows: list[ResultRow]) -> list[dict]:
                     "model": model_name(fit["name"], fit["objective"]),
                     "chosen": cell["served"],
                     "setting": chosen.setting,
-                    "removed_pcs": chosen.removed_pcs,
+                    "swept": settings_of(chosen),
+                    "cell": settings_label(tuple(settings_of(chosen).items())),
                     "val_recall_at_1": chosen.val_recall_at_1,
-                    "val_recall_at_1_by_count": {
-                        str(r.removed_pcs): r.val_recall_at_1 for _, r in mine
+                    "val_recall_at_1_by_served": {
+                        settings_label(tuple(c["served"].items())): r.val_recall_at_1
+                        for c, r in mine
                     },
                     "test_recall_at_1": chosen.recall_at_1,
                     "selected": bool(chosen.selected),
@@ -210,10 +216,8 @@ def curve_reader(logdir: Path) -> Curves:
 
 
 def _setting_text(row: ResultRow) -> str:
-    """A cell's setting in words: its swept settings and removed count."""
-    return " ".join(
-        x for x in (row.setting, f"k={row.removed_pcs}" if sweeps_removed_pcs(row) else "") if x
-    )
+    """A cell's setting in words: its swept settings and the sweep's keys (k=5)."""
+    return " ".join(x for x in (row.setting, *sweep_labels(row)) if x)
 
 
 def _seeds_text(rows: list[ResultRow]) -> str:
@@ -269,15 +273,15 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
             mine = [r for r in single if r.season_pair == pair and label_of(r) == label]
             if not mine:
                 continue
-            counts = sorted({r.removed_pcs for r in single if r.season_pair == pair})
-            by_k: dict[int, list[ResultRow]] = {}
+            steps = sorted({_step(r) for r in single if r.season_pair == pair} - {None})
+            by_step: dict[int, list[ResultRow]] = {}
             for r in mine:
-                by_k.setdefault(r.removed_pcs, []).append(r)
+                by_step.setdefault(_step(r) or 0, []).append(r)
             points = [
-                (k, _mean(v, "recall_at_1"), _mean(v, "auc_pr")) for k, v in sorted(by_k.items())
+                (k, _mean(v, "recall_at_1"), _mean(v, "auc_pr")) for k, v in sorted(by_step.items())
             ]
-            if not sweeps_removed_pcs(mine[0]):
-                points = [(k, points[0][1], points[0][2]) for k in counts]
+            if _step(mine[0]) is None:  # a flat line over the pair's steps
+                points = [(k, points[0][1], points[0][2]) for k in steps or [0]]
             chosen = max(next(iter(choices(mine).values())), key=Choice.val_score)
             series[pair] = CompareSeries(points=points, **pooled_arrays(list(chosen.rows), curve))
         write_method_run(
@@ -287,6 +291,13 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
             n_thresholds=cfg.tb.pr_thresholds,
         )
     replace_folder(staging, logdir / COMPARE)
+
+
+def _step(row: ResultRow) -> int | None:
+    """Where a row sits on the compare view's step axis: the value of the sweep's key it
+    has (its removed count), or None for a method without one."""
+    values = settings_of(row)
+    return next((int(values[k]) for k in SWEEP_KEYS if k in values), None)
 
 
 def _mean(rows: list[ResultRow], metric: str) -> float:
@@ -301,7 +312,7 @@ def differences_to_baseline(
     (``vpr_jax.evaluation.bootstrap``); rows whose queries differ from the baseline's in
     number (no pairing possible) are left out. Returns them and the baseline's name."""
     selected = selected_rows(rows)
-    baseline = baseline_method(rows, tuple(cfg.precomputed))
+    baseline = baseline_method(rows, cfg.baseline, tuple(cfg.precomputed))
     out = {}
     for row in selected:
         base = None if baseline is None else baseline_of(row, selected, baseline)
@@ -390,7 +401,7 @@ def _shown(rows: list[ResultRow]) -> set[str]:
 def markdown_table(
     rows: list[ResultRow],
     differences: dict[str, Difference] | None = None,
-    baseline: str | None = BASELINE,
+    baseline: str | None = None,
 ) -> str:
     """results.md: the validation-selected setting per method (recall@1 and AUC-PR with
     their 95% intervals, what decided the choice, and the paired difference to the
@@ -470,8 +481,11 @@ def _ci(low: float, high: float) -> str:
 
 
 def _label(baseline: str | None) -> str:
-    """How results.md names the baseline: PCA, an outside set by its name."""
-    return "PCA" if baseline in (BASELINE, None) else str(baseline)
+    """How results.md names the baseline: a built-in method in capitals (PCA, LDA), a
+    user's method or an outside set by its name."""
+    if baseline is None:
+        return "the baseline"
+    return baseline.upper() if baseline in METHOD_NAMES else baseline
 
 
 def _versus(row: ResultRow, differences: dict[str, Difference], base: str) -> tuple[str, str]:

@@ -1,13 +1,17 @@
 """The sweep's methods as the plan runs them: each entry of ``methods`` (a built-in's line of
 the method table, or a user's ``module:name``) loaded as a ``Method``, its settings checked
-by its own ``Settings``, fitted to the training set, and expanded into the fits of each pair
-(``Fit``), each with the cells its state serves. Nothing is fitted here; the methods'
-modules load JAX.
+by its own ``Settings``, fitted to the training set by its own ``check``, and expanded into
+the fits of each pair (``Fit``), each with the cells its state serves. Nothing is fitted
+here; the methods' modules load JAX.
 
-A fit is one combination of the method's settings less those one fit serves (``serves``),
-one value of its variants (the auto-encoders' objective), one removed count where it fits
-per count (ica), and one seed where it draws random numbers (``seeds``). Its cells: each
-served value (pca's removed counts) x each sequence length.
+A method's settings come from ``<method>.*`` (``plugin.<name>.*``), from the sweep's own
+keys it has a setting of (``SWEEP_KEYS``: ``removed_pcs`` reaches pca, ica and diff_pca as
+their setting of that name) and, for a setting named like a ``train.*`` key, from ``train``
+(the shared defaults; ``train.augment=auto`` is the axis ``[true, false]``). A list is an
+axis. A fit is one combination of the settings less those one fit serves (``axes``), one
+value of a setting whose values are rows of their own (the auto-encoders' objective), and
+one seed where the method draws random numbers (``seeds``); its cells: each served value x
+each sequence length.
 """
 
 from __future__ import annotations
@@ -15,22 +19,37 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, NamedTuple
 
-from vpr_jax.config import SweepConfig
+from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig, TrainConfig
 from vpr_jax.errors import UserError
 from vpr_jax.method_table import (
     ALIGNED_FIX,
     METHODS,
-    SHARED_FIT,
+    OFFERS,
     MethodInfo,
     info_of,
     load_object,
-    model_label,
     model_name,
 )
 from vpr_jax.methods import settings as axes
-from vpr_jax.methods.contract import Method, SharedFit, TrainingSet, as_method
+from vpr_jax.methods.contract import (
+    ROWS,
+    SERVED,
+    SUFFIX,
+    Method,
+    SharedFit,
+    TrainingSet,
+    as_method,
+    axes_of,
+    needs_alignment,
+    needs_of,
+)
 from vpr_jax.methods.settings import Combination
+from vpr_jax.outputs.results import SWEEP_KEYS, cell_name
 from vpr_jax.progress import Log
+
+TRAIN_KEYS = tuple(
+    f.name for f in dataclasses.fields(TrainConfig) if f.name not in TRAIN_BOOKKEEPING
+)
 
 
 class Resolved(NamedTuple):
@@ -50,8 +69,8 @@ class Served(NamedTuple):
     """A cell's part of a fit: what encode is called with, and how the cell is named."""
 
     values: dict[str, Any]  # encode's keyword settings (the served ones)
-    setting: str  # the cell's swept settings (results.csv's setting)
-    removed_pcs: int  # 0 for a method without the removed-PC axis
+    settings: dict[str, Any]  # the cell's swept settings (what tells it from its neighbours)
+    setting: str  # their label, less the sweep's keys (results.csv's setting)
     run: str  # its run's name less the pair and ds: ica_n_components=64_k005, fae_seed1
 
 
@@ -61,7 +80,7 @@ class Fit(NamedTuple):
     method: Resolved
     settings: Any  # the fit's settings dataclass (a dict for a method without one)
     values: dict[str, Any]  # fit's keyword settings
-    objective: str  # its variant ("" for a method without variants)
+    objective: str  # its value of the setting whose values are rows ("" for none)
     folder: str  # its fitted state's folder under the pair's, and its training runs' name
     seed: int  # its key's: one of ``seeds``, or ``seed`` for a method that draws none
     served: tuple[Served, ...]
@@ -72,42 +91,66 @@ def group_of(info: MethodInfo) -> str:
     return f"plugin.{info.name}" if info.plugin else info.name
 
 
-def given_settings(cfg: SweepConfig, info: MethodInfo) -> dict:
-    """A method's settings as the command line and the preset gave them."""
-    return dict(cfg.plugin.get(info.name, {}) if info.plugin else getattr(cfg, info.name))
+def _fields(method: Method) -> set[str]:
+    """The settings a method has: its dataclass's fields, or (without one) the settings
+    its ``axes`` name."""
+    if method.settings is not None:
+        return {f.name for f in dataclasses.fields(method.settings)}
+    return set(method.axes) if isinstance(method.axes, dict) else set()
+
+
+def given_settings(cfg: SweepConfig, info: MethodInfo, method: Method | None = None) -> dict:
+    """A method's settings as the command line and the preset gave them, with the sweep's
+    keys and the training defaults it has a setting of."""
+    given = dict(cfg.plugin.get(info.name, {}) if info.plugin else getattr(cfg, info.name))
+    fields = _fields(method) if method is not None else set()
+    for key in SWEEP_KEYS:
+        if key in fields and key not in given:
+            given[key] = list(getattr(cfg, key))
+    for key in TRAIN_KEYS:
+        if key in fields and given.get(key) is None:
+            value = getattr(cfg.train, key)
+            given[key] = [True, False] if key == "augment" and value == "auto" else value
+    return given
 
 
 def _given_in(keys: frozenset[str], group: str) -> frozenset[str]:
-    """The settings of ``group`` among dotted ``keys`` (``ica.n_components`` -> n_components)."""
+    """The settings of ``group`` among dotted ``keys`` (``ica.n_components`` ->
+    n_components); the sweep's own keys and ``train.*`` count as given to every method."""
     prefix = f"{group}."
-    return frozenset(k[len(prefix) :] for k in keys if k.startswith(prefix))
+    own = {k[len(prefix) :] for k in keys if k.startswith(prefix)}
+    shared = {k for k in keys if k in SWEEP_KEYS}
+    shared |= {k.removeprefix("train.") for k in keys if k.removeprefix("train.") in TRAIN_KEYS}
+    return frozenset(own | shared)
 
 
 def load(info: MethodInfo) -> Method:
     return as_method(load_object(info), info.method)
 
 
-def resolve(info: MethodInfo, given: dict) -> Resolved:
+def resolve(info: MethodInfo, cfg: SweepConfig) -> Resolved:
     """A method loaded and its settings expanded and checked (not yet against the data)."""
     method = load(info)
     group = group_of(info)
+    given = given_settings(cfg, info, method)
     combinations = tuple(axes.expand(method.settings, given, group))
     return Resolved(info=info, method=method, group=group, combinations=combinations)
 
 
-def shared_fit_settings(cfg: SweepConfig) -> tuple[SharedFit, Any]:
-    """The pair's shared PCA fit: its declaration and its settings (``method_table.SHARED_FIT``
-    's, whether or not that method is in ``methods``)."""
-    info = METHODS[SHARED_FIT]
-    provider = resolve(info, given_settings(cfg, info))
-    if len(provider.combinations) != 1:
-        swept = ", ".join(f"{provider.group}.{n}" for n, _ in provider.combinations[0].swept)
-        raise UserError(
-            f"{swept} is a list, but {provider.group}'s settings also shape the pair's shared "
-            "PCA fit, which every method that uses it shares: give one value, and sweep it "
-            "in logdirs of their own"
-        )
-    return provider.method.shared_fit, provider.combinations[0].settings
+def shared_fits(cfg: SweepConfig) -> dict[str, tuple[SharedFit, Resolved]]:
+    """Each fit a pair shares (``method_table.OFFERS``): its declaration and the method
+    that offers it with its settings, whether or not that method is in ``methods``. A
+    method that needs it gets it with the offering method's first combination of settings;
+    the offering method's own cells, with each of theirs."""
+    out = {}
+    for resource, (name, declared) in OFFERS.items():
+        out[resource] = (load_object_of(declared), resolve(METHODS[name], cfg))
+    return out
+
+
+def load_object_of(ref: str) -> Any:
+    """``module:object`` of the suite (a table's line), imported."""
+    return load_object(MethodInfo(name=ref, method=ref))
 
 
 def resolve_methods(
@@ -118,16 +161,15 @@ def resolve_methods(
     always when it is the user's), and left out otherwise."""
     resolved, left_out = [], []
     for entry in cfg.methods:
-        info = info_of(entry)
-        one = resolve(info, given_settings(cfg, info))
-        if one.method.needs_alignment and not aligned:
+        one = resolve(info_of(entry), cfg)
+        if needs_alignment(one.method, one.combinations[0].settings) and not aligned:
             left_out.append(one)
             continue
         resolved.append(one)
     refused = [r.name for r in left_out if r.info.plugin or "methods" in asked]
     if refused:
         raise UserError(
-            f"methods {refused} learn from aligned training places (needs_alignment), which "
+            f"methods {refused} learn from aligned training places (needs 'aligned'), which "
             f"data.source={source} does not have: {ALIGNED_FIX}"
         )
     if not resolved and not cfg.precomputed:
@@ -145,7 +187,8 @@ def _check_run_names(resolved: list[Resolved]) -> None:
         model_name(r.name, objective)
         for r in resolved
         if not r.info.plugin
-        for objective in _variants(r, r.combinations[0])
+        for c in r.combinations
+        for objective in _rows(r, c)
     }
     clash = [r.name for r in resolved if r.info.plugin and r.name in taken]
     if clash:
@@ -155,137 +198,132 @@ def _check_run_names(resolved: list[Resolved]) -> None:
         )
 
 
-def _variants(r: Resolved, combination: Combination) -> tuple[str, ...]:
-    """The values of a method's variants (its objectives), or one empty one."""
-    if not r.method.variants:
+def _rows_setting(method: Method, settings: Any) -> str:
+    """The setting whose values are rows of their own ('' for none)."""
+    rows = [n for n, kind in axes_of(method, settings).items() if kind == ROWS]
+    return rows[0] if rows else ""
+
+
+def _rows(r: Resolved, combination: Combination) -> tuple[str, ...]:
+    """The values of a method's rows setting (its objectives), or one empty one."""
+    name = _rows_setting(r.method, combination.settings)
+    if not name:
         return ("",)
-    value = combination.values[r.method.variants]
+    value = combination.values[name]
     return (value,) if isinstance(value, str) else tuple(value)
 
 
 def training_set(
-    cfg: SweepConfig, n_images: int, n_pixels: int, aligned: bool, r: Resolved, given, asked
+    r: Resolved,
+    n_images: int,
+    n_pixels: int,
+    aligned: bool,
+    given: frozenset[str],
+    asked: frozenset[str],
+    pca_components: int,
+    devices: int,
 ) -> TrainingSet:
+    swept: dict[str, list] = {}
+    for c in r.combinations:
+        for name, value in c.swept:
+            if value not in swept.setdefault(name, []):
+                swept[name].append(value)
     return TrainingSet(
         n_images=n_images,
         n_pixels=n_pixels,
         aligned=aligned,
-        removed_pcs=cfg.removed_pcs,
+        swept={name: tuple(values) for name, values in swept.items()},
         given=_given_in(given, r.group),
         asked=_given_in(asked, r.group),
+        pca_components=pca_components,
+        devices=devices,
     )
-
-
-def trim_removed(
-    cfg: SweepConfig, resolved: tuple[Resolved, ...], sets: dict[str, TrainingSet], given, log: Log
-) -> SweepConfig:
-    """The removed counts the training set serves: counts named on the command line are
-    refused when it cannot (``check_training_set``), defaults and a preset's are cut to what
-    it can (one note)."""
-    sweeping = [r for r in resolved if "removed_pcs" in r.method.sweeps]
-    if not sweeping or "removed_pcs" in given:
-        return cfg
-    some = next(iter(sets.values()))
-    most, why = (
-        some.pca_limit - 1,
-        f"PCA of {some.n_images} training images has {some.pca_limit} components",
-    )
-    for r in (r for r in sweeping if r.method.most_removed is not None):
-        for c in r.combinations:
-            limit, reason = r.method.most_removed(c.settings, sets[r.name])
-            most, why = min(most, limit), why if reason in why else why + reason
-    kept = tuple(k for k in cfg.removed_pcs if k <= most)
-    dropped = [k for k in cfg.removed_pcs if k > most]
-    if dropped and kept:
-        log(f"note: removed_pcs {dropped} dropped: {why} (set removed_pcs to choose)")
-        return dataclasses.replace(cfg, removed_pcs=kept)
-    return cfg
 
 
 def check_training_set(
     resolved: tuple[Resolved, ...], sets: dict[str, TrainingSet], log: Log
 ) -> tuple[Resolved, ...]:
     """Each method's settings fitted to the training set by its own ``check`` (notes for
-    what it changes, UserError for what it cannot serve); removed counts beyond the PCA of
-    the training set are refused for every method that takes them."""
+    what it changes, a combination it returns None for left out, UserError for what it
+    cannot serve). A note is said once, however many combinations give it."""
+    said: set[str] = set()
+
+    def once(line: str) -> None:
+        if line not in said:
+            said.add(line)
+            log(line)
+
     out = []
     for r in resolved:
-        ts = sets[r.name]
-        if "removed_pcs" in r.method.sweeps and max(ts.removed_pcs) >= ts.pca_limit:
+        if r.method.check is None:
+            out.append(r)
+            continue
+        kept = []
+        for c in r.combinations:
+            s = r.method.check(c.settings, sets[r.name], once)
+            if s is not None:
+                kept.append(c._replace(settings=s, values={**c.values, **axes.as_dict(s)}))
+        if not kept:
             raise UserError(
-                f"removed_pcs={list(ts.removed_pcs)} leaves no component: PCA of "
-                f"{ts.n_images} training images has {ts.pca_limit} components, so use "
-                f"counts below {ts.pca_limit}"
+                f"no setting of {r.name} fits the training set (the notes above say why): "
+                f"change {r.group}.* or the split"
             )
-        if r.method.check is not None:
-            checked = [r.method.check(c.settings, ts, log) for c in r.combinations]
-            r = r._replace(
-                combinations=tuple(
-                    c._replace(settings=s, values={**c.values, **axes.as_dict(s)})
-                    for c, s in zip(r.combinations, checked, strict=True)
-                )
-            )
-        out.append(r)
+        out.append(r._replace(combinations=tuple(kept)))
     return tuple(out)
+
+
+def _served_names(method: Method, settings: Any) -> set[str]:
+    return {n for n, kind in axes_of(method, settings).items() if kind in (SERVED, SUFFIX)}
 
 
 def fits(r: Resolved, cfg: SweepConfig) -> list[Fit]:
     """The fits of one method in each pair, in the order they run."""
-    method, served_names = r.method, set(r.method.serves)
-    counts = cfg.removed_pcs if "removed_pcs" in method.sweeps else None
-    fit_counts = (None,) if counts is None or "removed_pcs" in served_names else counts
-    seeds = cfg.fit_seeds if method.random else (cfg.seed,)
+    seeds = cfg.fit_seeds if r.method.random else (cfg.seed,)
     groups: dict[str, list[Combination]] = {}
     for c in r.combinations:  # combinations that differ only in served settings share a fit
-        key = repr(sorted((n, v) for n, v in c.values.items() if n not in served_names))
+        served = _served_names(r.method, c.settings)
+        key = repr(sorted((n, v) for n, v in c.values.items() if n not in served))
         groups.setdefault(key, []).append(c)
     out = []
     for group in groups.values():
-        first = group[0]
-        fit_swept = tuple((n, v) for n, v in first.swept if n not in served_names)
-        for objective in _variants(r, first):
-            for k in fit_counts:
-                for seed in seeds:
-                    out.append(_fit(r, group, fit_swept, objective, k, counts, seed, cfg.seed))
+        for objective in _rows(r, group[0]):
+            for seed in seeds:
+                out.append(_fit(r, group, objective, seed, cfg.seed))
     return out
 
 
-def _fit(r, group, fit_swept, objective, k, counts, seed, data_seed) -> Fit:
-    method, served_names = r.method, set(r.method.serves)
+def _fit(r: Resolved, group: list[Combination], objective: str, seed, data_seed) -> Fit:
     first = group[0]
+    served_names = _served_names(r.method, first.settings)
+    rows_name = _rows_setting(r.method, first.settings)
     values = {n: v for n, v in first.values.items() if n not in served_names}
-    if method.variants:
-        values[method.variants] = objective
-    if k is not None:
-        values["removed_pcs"] = k
-    cell_counts = counts if k is None and counts is not None else (k if k is not None else 0,)
+    if rows_name:
+        values[rows_name] = objective
     seed_named = seed if seed != data_seed else None
-    count_named = "" if counts is None else "_k{:03d}"
     served = tuple(
         Served(
-            values={
-                **{n: c.values[n] for n in served_names if n in c.values},
-                **({"removed_pcs": count} if "removed_pcs" in served_names else {}),
-            },
-            setting=c.label,
-            removed_pcs=count,
-            run=model_label(r.name, objective, c.label, seed_named) + count_named.format(count),
+            values={n: c.values[n] for n in served_names if n in c.values},
+            settings=dict(c.swept),
+            setting=axes.label(tuple((n, v) for n, v in c.swept if n not in SWEEP_KEYS)),
+            run=cell_name(r.name, objective, c.swept, seed_named),
         )
         for c in group
-        for count in cell_counts
     )
-    folder = model_label(r.name, objective, axes.label(fit_swept), seed_named)
-    if k is not None:
-        folder += f"_k{k:03d}"
+    fit_swept = tuple((n, v) for n, v in first.swept if n not in served_names)
     return Fit(
         method=r,
         settings=first.settings,
         values=values,
         objective=objective,
-        folder=folder,
+        folder=cell_name(r.name, objective, fit_swept, seed_named),
         seed=seed,
         served=served,
     )
+
+
+def needs(fit: Fit) -> tuple[str, ...]:
+    """What the fit's method needs, for the fit's settings."""
+    return needs_of(fit.method.method, fit.settings)
 
 
 def settings_identities(config: dict) -> dict[str, dict]:
@@ -303,6 +341,7 @@ def settings_identities(config: dict) -> dict[str, dict]:
             method = load(info)
         except UserError:  # a user's method that no longer imports: its settings as given
             method = None
-        schema, variants = (method.settings, method.variants) if method else (None, "")
-        out[group_of(info)] = axes.identity(schema, given, variants)
+        schema = method.settings if method else None
+        rows = _rows_setting(method, None) if method and not callable(method.axes) else ""
+        out[group_of(info)] = axes.identity(schema, given, rows)
     return out

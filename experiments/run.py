@@ -1,4 +1,4 @@
-"""Running a validated sweep: start the devices, then every cell still to do, pair by pair.
+"""Running a validated sweep: every cell still to do, pair by pair, on the plan's devices.
 
 Per pair, each fit of each method (``experiments.resolve``) with a cell still to do is
 fitted, kept and encoded the same way for every method (``experiments.fitting``); its cells
@@ -13,18 +13,18 @@ import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 from jax.sharding import Mesh
 
-from experiments.cells import INCOMPLETE, log_cell, match, save_cell, validation_scores
+from experiments.cells import INCOMPLETE, log_cell, match, run_name, save_cell, validation_scores
 from experiments.fitting import PairRun, describe_fit
 from experiments.plan import Plan
 from experiments.report import COMPARE, SUMMARY, write_report
 from experiments.resolve import Fit, Served
-from vpr_jax.config import MeshConfig
 from vpr_jax.data.pair import PairData, benchmark_pair, pair_data
-from vpr_jax.errors import UserError, first_line
+from vpr_jax.errors import UserError
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.evaluation.protocol import describe_protocol, fingerprint, protocol_record
 from vpr_jax.files import atomic_write_text
@@ -33,54 +33,21 @@ from vpr_jax.methods.descriptors import Descriptors
 from vpr_jax.methods.precomputed import precomputed_descriptors
 from vpr_jax.outputs.logdir import config_yaml, fitted_root, lock_logdir
 from vpr_jax.outputs.results import (
+    SWEEP_KEYS,
     TIMING_NAMES,
-    CellKey,
     ResultRow,
     cell_key,
     read_results,
+    sweep_columns,
 )
 from vpr_jax.outputs.tb import write_experiment_config
 from vpr_jax.progress import Bar, Log, RunLog
-from vpr_jax.sharding import make_mesh, mesh_size
-
-
-def start_devices(cfg: MeshConfig, log: Log) -> Mesh | None:
-    """Join the other processes (``mesh.distributed``), then build the device mesh."""
-    if cfg.distributed:
-        # CPU devices of several processes talk through gloo; GPUs use NCCL regardless.
-        jax.config.update("jax_cpu_collectives_implementation", "gloo")
-        try:
-            jax.distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
-        except (RuntimeError, ValueError) as err:
-            raise UserError(
-                f"mesh.distributed=true could not join the other processes ({first_line(err)}): "
-                "start "
-                "one process per host under a launcher JAX detects (SLURM, Open MPI), or set "
-                "mesh.coordinator=HOST:PORT, mesh.num_processes and mesh.process_id"
-            ) from None
-    try:
-        mesh = make_mesh(cfg.devices)
-    except ValueError as err:
-        raise UserError(str(err)) from None
-    if mesh is not None:
-        devices = mesh.devices.flat
-        log(
-            f"mesh: {mesh_size(mesh)} {devices[0].platform} devices in "
-            f"{jax.process_count()} process(es); PCA samples, matching database and "
-            "training batches are split over them"
-        )
-    return mesh
 
 
 def run_cells(plan: Plan, log: RunLog) -> Path:
-    """Start the devices, then fit, encode, match and evaluate every cell still to do,
+    """Fit, encode, match and evaluate every cell still to do on the plan's devices,
     writing each one's run and results.csv row as it ends."""
-    cfg = plan.cfg
-    mesh = start_devices(cfg.mesh, log)
-    for r in plan.methods:  # before anything is written, not mid-sweep
-        if r.method.check_devices is not None:
-            for c in r.combinations:
-                r.method.check_devices(c.settings, cfg.train, mesh)
+    mesh = plan.mesh
     # With several processes all compute, process 0 writes the logdir; the others read it
     # (shared file system) to agree on what is left, and write to a folder they delete.
     primary = jax.process_index() == 0
@@ -101,7 +68,21 @@ def run_cells(plan: Plan, log: RunLog) -> Path:
             shutil.rmtree(out, ignore_errors=True)
 
 
-def all_cells(plan: Plan) -> list[CellKey]:
+class Cell(NamedTuple):
+    """A cell of the plan: its run (what identifies it in results.csv) and what the
+    experiment's HParams config lists of it."""
+
+    run: str  # summer-fall/pca_k005, summer-fall/fae_cross_season_ds10
+    season_pair: str
+    method: str
+    objective: str
+    setting: str
+    settings: dict  # every swept setting, by name
+    ds: int
+    seed: int
+
+
+def all_cells(plan: Plan) -> list[Cell]:
     """Every cell of the sweep, in the order it runs."""
     cfg, out = plan.cfg, []
     for a, b in plan.pairs:
@@ -119,31 +100,39 @@ def all_cells(plan: Plan) -> list[CellKey]:
     return out
 
 
-def cell_of(pair: str, fit: Fit, part: Served, ds: int) -> CellKey:
+def cell_of(pair: str, fit: Fit, part: Served, ds: int) -> Cell:
     """The cell of one served part of a fit at one sequence length."""
-    return CellKey(
+    return Cell(
+        run=run_name(pair, part.run, ds),
         season_pair=pair,
         method=fit.method.name,
         objective=fit.objective,
         setting=part.setting,
-        removed_pcs=part.removed_pcs,
+        settings=part.settings,
         ds=ds,
         seed=fit.seed,
     )
 
 
-def outside_cell(pair: str, name: str, ds: int, seed: int) -> CellKey:
-    """The cell of a set of outside descriptors: no objective, setting or count."""
-    return CellKey(
-        season_pair=pair, method=name, objective="", setting="", removed_pcs=0, ds=ds, seed=seed
+def outside_cell(pair: str, name: str, ds: int, seed: int) -> Cell:
+    """The cell of a set of outside descriptors: no objective or settings."""
+    return Cell(
+        run=run_name(pair, name, ds),
+        season_pair=pair,
+        method=name,
+        objective="",
+        setting="",
+        settings={},
+        ds=ds,
+        seed=seed,
     )
 
 
-def _cells_to_do(plan: Plan, log: Log) -> tuple[list[CellKey], set[CellKey]]:
-    """Every cell of the sweep, in order, and those not yet in results.csv."""
+def _cells_to_do(plan: Plan, log: Log) -> tuple[list[Cell], set[str]]:
+    """Every cell of the sweep, in order, and the runs of those not yet in results.csv."""
     done = {cell_key(r) for r in read_results(plan.logdir / "results.csv")}
     cells = all_cells(plan)
-    todo = {c for c in cells if c not in done}
+    todo = {c.run for c in cells if c.run not in done}
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} cells already in results.csv")
     return cells, todo
@@ -169,7 +158,7 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
             "method": [c.method for c in cells],
             "objective": [c.objective for c in cells],
             "setting": [c.setting for c in cells],
-            "removed_pcs": [float(c.removed_pcs) for c in cells],
+            **{key: [float(sweep_columns(c.settings)[key]) for c in cells] for key in SWEEP_KEYS},
             "ds": [float(c.ds) for c in cells],
             "seed": [float(c.seed) for c in cells],
         },
@@ -198,7 +187,7 @@ def _run_pair(
     plan: Plan,
     db: str,
     query: str,
-    todo: set[CellKey],
+    todo: set[str],
     log: RunLog,
     out: Path,
     mesh: Mesh | None,
@@ -209,7 +198,7 @@ def _run_pair(
     run = None
 
     def left(fit, part) -> bool:
-        return any(cell_of(pair, fit, part, ds) in todo for ds in cfg.sequence_lengths)
+        return any(run_name(pair, part.run, ds) in todo for ds in cfg.sequence_lengths)
 
     def pair_run() -> PairRun:  # built on first use
         nonlocal run
@@ -238,7 +227,7 @@ def _run_pair(
                 del desc
                 release_free_memory()
     for name, sides in plan.outside.items():
-        if any(outside_cell(pair, name, ds, cfg.seed) in todo for ds in cfg.sequence_lengths):
+        if any(run_name(pair, name, ds) in todo for ds in cfg.sequence_lengths):
             data = pair_run().data
             desc = precomputed_descriptors(name, sides, data, cfg.seed)
             yield from _save_descriptors(out, cfg, data, desc, todo, mesh)
@@ -266,7 +255,7 @@ def _save_descriptors(
     cfg,
     data: PairData,
     desc: Descriptors,
-    todo: set[CellKey],
+    todo: set[str],
     mesh: Mesh | None,
 ) -> Iterator[tuple[ResultRow, str | None]]:
     """Match, evaluate and save every cell of these descriptors still to do, part by part
@@ -285,16 +274,7 @@ def _save_descriptors(
 
     for cell, p in enumerate(desc.parts):
         for ds in cfg.sequence_lengths:
-            key = CellKey(
-                season_pair=data.name,
-                method=desc.method,
-                objective=desc.objective,
-                setting=p.setting,
-                removed_pcs=p.removed_pcs,
-                ds=ds,
-                seed=desc.seed,
-            )
-            if key not in todo:
+            if run_name(data.name, p.run, ds) not in todo:
                 continue
             row = save_cell(
                 out, cfg, data, desc, cell, ds, matches(cell, ds, "test"), matches(cell, ds, "val")

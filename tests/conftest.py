@@ -270,10 +270,10 @@ def small_sweep(tmp_path_factory):
 def method_settings(cfg, name: str):
     """A built-in method's settings as the plan checks them (its ``Settings``; the first
     combination of its axes), before they meet the training set."""
-    from experiments.resolve import given_settings, resolve
+    from experiments.resolve import resolve
     from vpr_jax.method_table import METHODS
 
-    return resolve(METHODS[name], given_settings(cfg, METHODS[name])).combinations[0].settings
+    return resolve(METHODS[name], cfg).combinations[0].settings
 
 
 def suffix_cosine(query_desc, db_desc, starts: tuple[int, ...]):

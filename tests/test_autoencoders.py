@@ -119,30 +119,19 @@ def test_max_pool_2x2_equals_flax_max_pool_and_its_gradient_picks_the_maximum():
     np.testing.assert_array_equal(grad, want)  # continuous data: no ties
 
 
-def test_augment_auto_keeps_the_better_model_wherever_it_is_in_the_list():
-    """``train.augment=auto`` trains two models and keeps the better on validation; the
-    second (plain) one winning once crashed the sweep, as models holding arrays were
-    compared to find its position."""
-    from vpr_jax.encoders.train import TrainResult
-    from vpr_jax.methods.autoencoder import better_model
+def test_augment_auto_is_the_axis_of_both_values_and_training_settings_default_to_train():
+    """``train.augment=auto`` is shorthand for the axis ``augment=[true,false]`` of every
+    trained method (a fit per value, the runner's rule chooses); a training setting the
+    method is not given takes ``train.*``'s value, one it is given wins."""
+    from experiments.resolve import resolve
+    from vpr_jax.config import parse_config
+    from vpr_jax.method_table import METHODS
 
-    def model(score):
-        params = {"w": jnp.full((3, 2), score)}
-        return TrainResult(
-            graphdef=None,
-            params=params,
-            epochs=4,
-            steps=40,
-            best_val_loss=0.1,
-            best_score=score,
-            best_epoch=2,
-            selected_by="recall",
-            stopped_early=False,
-            restored=False,
-            resumed_epoch=0,
-            train_seconds=1.0,
-        )
-
-    assert better_model([model(0.5), model(0.7)]) == 1
-    assert better_model([model(0.7), model(0.5)]) == 0
-    assert better_model([model(0.6), model(0.6)]) == 0  # a tie: the first (augmented)
+    cfg = parse_config(["train.augment=auto", "train.learning_rate=0.01", "cae.learning_rate=0.1"])
+    fae = resolve(METHODS["fae"], cfg)
+    assert [c.values["augment"] for c in fae.combinations] == [True, False]
+    assert [c.label for c in fae.combinations] == ["augment=True", "augment=False"]
+    assert {c.values["learning_rate"] for c in fae.combinations} == {0.01}
+    cae = resolve(METHODS["cae"], cfg)
+    assert {c.values["learning_rate"] for c in cae.combinations} == {0.1}
+    assert resolve(METHODS["fae"], parse_config([])).combinations[0].values["augment"] is True

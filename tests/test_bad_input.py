@@ -188,10 +188,6 @@ CONFIG_CASES = {
         ["ica.n_components=[]"],
         ["ica.n_components=[] is an empty list", "values to sweep"],
     ),
-    "a swept setting of the shared PCA fit": (
-        ["pca.solver=[auto,gram]"],
-        ["pca.solver is a list", "shared PCA fit"],
-    ),
     "seeds that repeat": (["seeds=[0,0]"], ["seeds=[0, 0]", "name each once"]),
     "unknown ICA contrast": (["ica.fun=tanh"], ["ica.fun=tanh", "logcosh"]),
     "sequence of no image": (["sequence.ds=[0,10]"], ["sequence.ds=[0, 10]", "ds=1"]),

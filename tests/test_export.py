@@ -144,9 +144,13 @@ def test_a_small_benchmark_runs_on_the_default_counts(bench, tmp_path):
         "components and removed_pcs goes up to 100 (set ica.n_components to choose)"
     ]
     assert cfg.removed_pcs == (0, 5, 10, 20, 50, 100) and cfg.ica["n_components"] == 19
-    cfg, notes = _plan(bench, tmp_path, "ica.n_components=100")  # the counts give way to it
-    assert cfg.removed_pcs == (0, 5, 10)
-    assert any("removed_pcs [20, 50, 100] dropped" in n for n in notes)
+    cfg, notes = _plan(bench, tmp_path, "ica.n_components=100")  # ICA's counts give way to it
+    every = [0, 5, 10, 20, 50, 100]  # pca keeps every count: only ICA's size takes room
+    assert cfg.ica["removed_pcs"] == [0, 5, 10] and cfg.pca["removed_pcs"] == every
+    assert (
+        "note: ica removed_pcs=20 left out: PCA of 120 training images has 119 components, "
+        "100 of them for ICA (ica.n_components) (set removed_pcs to choose)"
+    ) in notes
     with pytest.raises(UserError, match="ica.n_components=100 with removed_pcs up to 50"):
         _plan(bench, tmp_path, "ica.n_components=100", "removed_pcs=[0,50]")
     ica = {int(r["removed_pcs"]) for r in results(bench) if r["method"] == "ica"}

@@ -22,9 +22,9 @@ from vpr_jax.data.splits import make_split
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import objectives
-from vpr_jax.encoders.saved import load_encoder
 from vpr_jax.encoders.train import TrainingData, TrainOptions, fit_autoencoder
 from vpr_jax.errors import UserError
+from vpr_jax.methods.loading import load_encoder
 
 
 def _images(n: int, seed: int = 0) -> np.ndarray:
@@ -186,7 +186,7 @@ def test_the_real_preset_sets_no_data_keys_and_its_logdir_names_the_source():
             n_images=100,
             n_pixels=2048,
             aligned=False,
-            removed_pcs=(0,),
+            swept={},
             given=frozenset(),
             asked=frozenset(),  # a preset for any source asks for nothing
         )

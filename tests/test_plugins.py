@@ -207,13 +207,113 @@ def test_what_encode_returns_is_checked(encode, words):
     assert good({"w": 2.0}, np.ones((3, 32, 64), np.float32)).shape == (3, 2048)
 
 
+def test_a_built_in_encode_is_checked_as_a_users_is():
+    """The runner checks every method's descriptors the same way: pca's encode on a state
+    whose mean is NaN (as a broken fit would leave it) is one line naming the method."""
+    from experiments.resolve import load
+    from vpr_jax.encoders import pca
+    from vpr_jax.method_table import METHODS
+
+    images = np.random.default_rng(0).random((6, 32, 64), np.float32)
+    state = pca.fit_pca(images)
+    broken = state._replace(mean=state.mean.at[0].set(jnp.nan))
+    encode = load(METHODS["pca"]).encode
+    with pytest.raises(UserError) as err:
+        checked_encode(METHODS["pca"], encode, jit=False)(broken, images)
+    message = str(err.value)
+    assert message.startswith("method pca (vpr_jax.methods.pca:method): encode gave NaN")
+    assert "\n" not in message
+    assert checked_encode(METHODS["pca"], encode, jit=False)(state, images).shape[0] == 6
+
+
+# A method that uses every declaration of the contract (docs/methods.md, "Your own method"):
+# PCA coordinates of the pair's shared fit, skipping the first ``skip`` (served: one fit),
+# after the sweep's removed counts are taken out (a fit per count), on ``n`` components that
+# its check caps to what the shared fit holds (a note), leaving out skips beyond ``n``.
+EVERY_DECLARATION = """
+import dataclasses
+
+import jax.numpy as jnp
+
+from vpr_jax.errors import UserError
+from vpr_jax.methods.contract import Report
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    n: int = 8
+    skip: int = 0
+    removed_pcs: int = 0  # the sweep hands its removed_pcs to a setting of this name
+
+    def __post_init__(self):
+        if self.n < 1:
+            raise UserError(f"plugin.every.n={self.n} must be >= 1")
+
+
+def _check(settings, training, log):
+    if settings.skip >= settings.n:
+        log(f"note: every: skip={settings.skip} left out (n={settings.n})")
+        return None
+    held = training.pca_components - settings.removed_pcs
+    if settings.n > held:
+        log(f"note: every: n={settings.n} capped to {held}")
+        return dataclasses.replace(settings, n=held)
+    return settings
+
+
+class every:
+    settings = Settings
+    axes = {"skip": "served"}
+    needs = ("pca_fit", "validation")
+    random = False
+    check = staticmethod(_check)
+
+    @staticmethod
+    def fit(train, aligned, key, *, pca_fit, validation, n, removed_pcs):
+        basis = pca_fit.state.components[removed_pcs : removed_pcs + n]
+        seen = jnp.float32(len(validation.images))
+        return {"mean": pca_fit.state.mean, "basis": basis, "validation_images": seen}
+
+    @staticmethod
+    def encode(state, images, skip=0):
+        x = jnp.reshape(images, (images.shape[0], -1)) - state["mean"]
+        return (x @ state["basis"].T)[:, skip:]
+
+    @staticmethod
+    def report(state, settings):
+        return Report(n_iter=int(state["basis"].shape[0]), warning=f"every: {settings['skip']}")
+"""
+
+
+def test_a_method_using_every_declaration_runs_as_declared(tmp_path, monkeypatch):
+    _module(tmp_path / "mine", "every_decl", EVERY_DECLARATION)
+    monkeypatch.syspath_prepend(str(tmp_path / "mine"))
+    logdir = tmp_path / "runs"
+    proc = run_here(
+        *SMALL_ROUTE,
+        "methods=[pca,every_decl:every]",
+        "removed_pcs=[0,5]",
+        "plugin.every.n=400",
+        "plugin.every.skip=[0,2,500]",
+        f"logdir={logdir}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "note: every: n=400 capped to 244" in proc.stdout  # 249 held, less removed 5
+    assert "note: every: skip=500 left out (n=400)" in proc.stdout
+    rows = [r for r in read_results(logdir / "results.csv") if r.method == "every"]
+    cells = sorted((r.removed_pcs, r.setting) for r in rows)
+    assert cells == [(k, f"skip={s}") for k in (0, 5) for s in (0, 2)]
+    assert {r.n_iter for r in rows} == {244, 249} and all(r.seed == 0 for r in rows)
+    assert "warning: summer-fall every skip=2 k=5: every: 2" in proc.stdout
+
+
 def test_a_method_that_needs_alignment_is_refused_without_aligned_places(tmp_path, monkeypatch):
-    _module(tmp_path, "aligned_only", CENTRED_PIXELS + "\ncentred_pixels.needs_alignment = True\n")
+    _module(tmp_path, "aligned_only", CENTRED_PIXELS + "\ncentred_pixels.needs = ('aligned',)\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     cfg = parse_config(["methods=[aligned_only:centred_pixels]", "plugin.centred_pixels.record=x"])
     (mine,) = resolve_methods(cfg, True, "synthetic", frozenset())
-    assert mine.method.needs_alignment and mine.name == "centred_pixels"
-    with pytest.raises(UserError, match="needs_alignment.*data.source=vpr_bench.*train_source"):
+    assert mine.method.needs == ("aligned",) and mine.name == "centred_pixels"
+    with pytest.raises(UserError, match="needs 'aligned'.*data.source=vpr_bench.*train_source"):
         resolve_methods(cfg, False, "vpr_bench", frozenset())
     both = resolve_methods(parse_config(["methods=[raw,lda]"]), True, "synthetic", frozenset())
     assert [r.name for r in both] == ["raw", "lda"]

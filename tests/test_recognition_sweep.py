@@ -50,29 +50,30 @@ def _recall_curve(run_dir) -> list[float]:
 
 
 def test_the_kept_model_and_epoch_are_validation_recall_s_choice(sweep):
+    """``train.augment=auto`` is the axis augment=[true,false]: a model and a row each, the
+    runner's rule selects between them; each model keeps its epoch of best validation
+    recall, the recall the sweep reports for its cell."""
     logdir, proc = sweep
-    rows = {r.method: r for r in read_results(logdir / "results.csv")}
+    rows = read_results(logdir / "results.csv")
     with open(logdir / "encoders.csv") as f:
-        folders = {e["method"]: e["folder"] for e in csv.DictReader(f)}
-    pca_k = next(
-        r for r in read_results(logdir / "results.csv") if r.method == "pca" and r.selected
-    )
+        folders = {(e["method"], e["setting"]): e["folder"] for e in csv.DictReader(f)}
     for method, model in MODELS.items():
-        row = rows[method]
-        curves = {
-            variant: _recall_curve(logdir / "summer-fall" / f"{model}_{variant}_training")
-            for variant in ("augmented", "plain")
-        }
-        assert all(len(c) == 3 for c in curves.values())  # epoch 0, then both epochs
-        kept = max(curves, key=lambda v: max(curves[v]))  # the first on a tie: augmented
-        assert folders[method].endswith(model)  # the kept model's state, saved
-        assert f"summer-fall {model}_{kept}: kept, the better on the validation" in proc.stdout
-        # The recall that chose the epoch is the recall the sweep reports for the cell.
-        assert row.val_recall_at_1 == pytest.approx(max(curves[kept]), abs=1e-6)
-        line = f"summer-fall {model}_{kept}: input residual, {pca_k.removed_pcs} leading"
-        assert line in proc.stdout  # k: PCA's validation-selected count
-        for variant, curve in curves.items():  # each checkpoint: finished, and how it chose
-            meta = checkpoints.read_meta(Path(folders[method]) / f"training_{variant}")
+        mine = [r for r in rows if r.method == method]
+        assert sorted(r.setting for r in mine) == ["augment=False", "augment=True"]
+        for row in mine:
+            name = f"{model}_{row.setting}"
+            curve = _recall_curve(logdir / "summer-fall" / f"{name}_training")
+            assert len(curve) == 3  # epoch 0, then both epochs
+            # The recall that chose the epoch is the recall the sweep reports for the cell.
+            assert row.val_recall_at_1 == pytest.approx(max(curve), abs=1e-6)
+            line = f"summer-fall {name}: input residual, 10 leading components"
+            assert line in proc.stdout  # fae.residual_pcs' default
+            folder = Path(folders[(method, row.setting)])
+            assert folder.name == name  # the model's state, saved
+            meta = checkpoints.read_meta(folder / "training")
             assert meta["done"] and meta["selected_by"] == SELECT_RECALL
             assert meta["best_epoch"] == curve.index(max(curve))
             assert meta["best_score"] == pytest.approx(max(curve), abs=1e-6)
+        (chosen,) = [r for r in mine if r.selected]
+        scores = [(r.val_recall_at_1, r.val_margin) for r in mine]
+        assert (chosen.val_recall_at_1, chosen.val_margin) == max(scores)

@@ -14,7 +14,6 @@ from vpr_jax.config import TrainConfig
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import objectives
-from vpr_jax.encoders.saved import load_encoder
 from vpr_jax.encoders.train import (
     SELECT_RECALL,
     NoLog,
@@ -22,6 +21,7 @@ from vpr_jax.encoders.train import (
     TrainOptions,
     fit_autoencoder,
 )
+from vpr_jax.methods.loading import load_encoder
 from vpr_jax.outputs.tb import TrainingRun
 
 

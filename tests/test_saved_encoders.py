@@ -55,19 +55,21 @@ def test_the_description_says_what_was_fitted_and_chosen(small_sweep):
     logdir, _ = small_sweep
     with open(f"{_folder(logdir, 'summer-fall', 'pca')}/encoder.json") as f:
         pca = json.load(f)
-    assert pca["serves"] == {"removed_pcs": [0, 5, 20]} and pca["removed_pcs"] in (0, 5, 20)
-    assert pca["chosen"] == {"removed_pcs": pca["removed_pcs"]}
-    by_count = pca["val_recall_at_1_by_count"]
-    assert pca["val_recall_at_1"] == max(by_count.values())  # the validation's choice
-    assert pca["run"] == f"summer-fall/pca_k{pca['removed_pcs']:03d}"
+    k = pca["swept"]["removed_pcs"]
+    assert pca["serves"] == {"removed_pcs": [0, 5, 20]} and k in (0, 5, 20)
+    assert pca["chosen"] == {"removed_pcs": k} and pca["cell"] == f"removed_pcs={k}"
+    by_served = pca["val_recall_at_1_by_served"]
+    assert set(by_served) == {f"removed_pcs={c}" for c in (0, 5, 20)}
+    assert pca["val_recall_at_1"] == max(by_served.values())  # the validation's choice
+    assert pca["run"] == f"summer-fall/pca_k{k:03d}"
     assert pca["preprocessing"]["patchnorm"] is None and pca["name"] == "pca"
     assert pca["method"] == "vpr_jax.methods.pca:method" and pca["model"] == "pca"
     with open(f"{_folder(logdir, 'summer-fall', 'fae', 'cross_season')}/encoder.json") as f:
         fae = json.load(f)
-    assert (fae["method"], fae["objective"], fae["removed_pcs"]) == (
+    assert (fae["method"], fae["objective"], fae["swept"]) == (
         "vpr_jax.methods.fae:method",
         "cross_season",
-        0,
+        {},
     )
     assert fae["settings"]["objective"] == "cross_season" and fae["serves"] == {}
 
@@ -130,6 +132,6 @@ def test_the_listing_command_names_every_encoder_and_refuses_other_folders(small
     lines = proc.stdout.strip().splitlines()
     assert lines[0].split() == ["pair", "method", "setting", "val", "recall@1", "chosen", "folder"]
     assert len(lines) == 1 + len(_listing(logdir)) and "(missing)" not in proc.stdout
-    assert any("ica" in line and "k=20" in line for line in lines)
+    assert any("ica" in line and "removed_pcs=20" in line for line in lines)
     refused = run_process([sys.executable, "-m", "experiments.encoders", str(tmp_path)])
     assert_one_line_error(refused, "has no encoders.csv", "python -m experiments.encoders")

@@ -2,6 +2,7 @@
 and marked again when the table grows; ties of validation recall@1 are broken by the
 validation margin (checked against a full similarity matrix), then by the simpler setting."""
 
+import json
 import math
 
 import numpy as np
@@ -30,6 +31,7 @@ def _row(method="pca", k=0, val=0.5, margin=0.1, test=0.5, ds=1, pair="summer-fa
         method=method,
         objective="",
         setting="",
+        settings=json.dumps({"removed_pcs": k} if method == "pca" else {}),
         removed_pcs=k,
         ds=ds,
         recall_at_1=test,

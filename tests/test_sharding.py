@@ -193,7 +193,7 @@ def test_a_sweep_over_two_processes_equals_one_process_and_only_process_0_writes
 def test_a_batch_that_does_not_split_over_the_devices_is_one_line(tmp_path):
     proc = run_cli("train.batch_size=12", f"logdir={tmp_path / 'runs'}", env=EIGHT)
     # A cross_season step takes the batch as pairs of a place's two images: 16 for 8 devices.
-    assert_one_line_error(proc, "train.batch_size=12", "multiple of 16")
+    assert_one_line_error(proc, "fae.batch_size=12 (train.batch_size unless set)", "multiple of 16")
     assert not (tmp_path / "runs").exists()
 
 

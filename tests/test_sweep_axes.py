@@ -11,12 +11,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import REPO, SMALL_ROUTE, read_run, run_cli, shared_folder, shared_sweep
+from tests.conftest import (
+    REPO,
+    SMALL_ROUTE,
+    TINY_MODELS,
+    TINY_ROUTE,
+    read_run,
+    run_cli,
+    run_here,
+    shared_folder,
+    shared_sweep,
+)
 from vpr_jax import load_encoder
 from vpr_jax.outputs.results import read_results
 
 # A user's method: a PCA projection of n_components directions (a fit per value) starting
-# ``skip`` directions in (one fit serves every value: ``serves``); it draws no random
+# ``skip`` directions in (one fit serves every value: ``axes``); it draws no random
 # numbers, so it fits once whatever the seeds. Each fit appends its settings to ``record``.
 PROJECTION = """
 import json
@@ -25,7 +35,7 @@ import jax.numpy as jnp
 
 
 class projection:
-    serves = ("skip",)
+    axes = {"skip": "served"}
     random = False
 
     @staticmethod
@@ -159,3 +169,62 @@ def test_a_value_added_to_a_list_adds_only_its_cells(axes, tmp_path):
     before, after = (len(read_results(Path(d) / "results.csv")) for d in (logdir, copy))
     assert after - before == 2  # n_components=6 at skip 0 and 2
     assert f"resuming: {before} of {after} cells" in proc.stdout
+
+
+def test_training_settings_and_inputs_are_axes_and_the_baseline_a_key(tmp_path):
+    """Every setting of a trained method is an ordinary axis (a model per value, the
+    runner's validation rule chooses), the residual input among them; ``baseline`` names
+    what results.md's paired differences are to."""
+    logdir = tmp_path / "runs"
+    proc = run_here(
+        *TINY_ROUTE,
+        "season_pairs=summer-fall",
+        "methods=[raw,lda,fae,cae]",
+        "fae.learning_rate=[0.001,0.0001]",
+        "fae.objective=cross_season",
+        "cae.input=[pixels,residual]",
+        "cae.objective=reconstruct",
+        *TINY_MODELS,
+        "train.epochs=1",
+        "fae.epochs=1",
+        "baseline=lda",
+        f"logdir={logdir}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    rows = read_results(logdir / "results.csv")
+    fae = [r for r in rows if r.method == "fae"]
+    assert sorted(r.setting for r in fae) == ["learning_rate=0.0001", "learning_rate=0.001"]
+    cae = [r for r in rows if r.method == "cae"]
+    assert sorted(r.setting for r in cae) == ["input=pixels", "input=residual"]
+    for mine in (fae, cae):
+        (chosen,) = [r for r in mine if r.selected]
+        best = max((r.val_recall_at_1, r.val_margin) for r in mine)
+        assert (chosen.val_recall_at_1, chosen.val_margin) == best
+    text = (logdir / "results.md").read_text()
+    assert "recall@1 - LDA" in text and "| summer-fall | lda |" in text
+    headline = text.split("## ")[1]  # each method at its validation-chosen setting
+    (lda_line,) = [ln for ln in headline.splitlines() if ln.startswith("| summer-fall | lda |")]
+    assert lda_line.rstrip().endswith("| baseline |")
+
+
+def test_a_setting_of_the_shared_pca_fit_is_an_axis_with_a_fit_per_value(tmp_path):
+    """``pca.solver=[covariance,gram]``: pca's cells get a shared fit per value (and, PCA
+    being PCA whatever solves it, the same numbers); ica takes the first value's fit."""
+    logdir = tmp_path / "runs"
+    proc = run_here(
+        *TINY_ROUTE,
+        "season_pairs=summer-fall",
+        "methods=[pca,ica]",
+        "pca.solver=[covariance,gram]",
+        "removed_pcs=[0,5]",
+        "ica.n_components=8",
+        f"logdir={logdir}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    rows = read_results(logdir / "results.csv")
+    pca = {(r.setting, r.removed_pcs): r for r in rows if r.method == "pca"}
+    assert set(pca) == {(f"solver={s}", k) for s in ("covariance", "gram") for k in (0, 5)}
+    for k in (0, 5):
+        a, b = pca[("solver=covariance", k)], pca[("solver=gram", k)]
+        assert a.recall_at_1 == b.recall_at_1 and a.auc_pr == pytest.approx(b.auc_pr, abs=1e-6)
+    assert {r.setting for r in rows if r.method == "ica"} == {""}

@@ -377,7 +377,11 @@ class SweepKnobs:
     season_pairs: str = "all"  # all, or db-query pairs: summer-fall,spring-fall
     # built-in names (vpr_jax.method_table) and your own as module:name
     methods: tuple[str, ...] = method_table.NAMES
+    # Handed to every method with a setting of this name (pca, ica, diff_pca) as a list.
     removed_pcs: tuple[int, ...] = (0, 5, 10, 20, 50, 100)
+    # results.md's paired differences are to this method's selected rows (any entry of
+    # methods or an outside set; without it in the sweep: the first outside set, or none).
+    baseline: str = "pca"
     tolerance: int = 2  # a match is correct when |query frame - db frame| <= tolerance
     pr_convention: str = "vpr_bench"  # vpr_bench | has_match | vpr_tutorial: PR recall
     preprocess: str = "none"  # none | patchnorm: applied to every image before any method

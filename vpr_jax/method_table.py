@@ -41,8 +41,10 @@ BUILTIN: tuple[MethodInfo, ...] = (
 )
 METHODS: dict[str, MethodInfo] = {m.name: m for m in BUILTIN}
 NAMES: tuple[str, ...] = tuple(METHODS)
-BASELINE = "pca"  # results.md's paired differences are to this method's selected rows
-SHARED_FIT = "pca"  # whose fit, with its settings, is the pair's shared PCA fit (pca_fit)
+# Fits a pair shares with every method that needs them (a resource of methods.contract's
+# NEEDS), each declared by the method that offers it: resource -> (that method, its
+# SharedFit object).
+OFFERS = {"pca_fit": ("pca", "vpr_jax.methods.pca:shared")}
 PRECOMPUTED = "precomputed"  # the methods entry that asks for outside descriptors only
 
 # What a method that learns from aligned places is told on data without them.

@@ -255,15 +255,14 @@ def make_eval_loss(
     return eval_loss
 
 
-def check_batch_splits(batch_size: int, mesh: Mesh | None, images_per_example: int = 1) -> None:
-    """Data-parallel training splits every batch's examples evenly over the mesh's devices
+def check_batch_splits(batch_size: int, devices: int, images_per_example: int = 1) -> None:
+    """Data-parallel training splits every batch's examples evenly over the ``devices``
     (a cross_season example is a place's two images)."""
-    step = sharding.mesh_size(mesh) * images_per_example
+    step = devices * images_per_example
     if batch_size % step:
         raise UserError(
-            f"train.batch_size={batch_size} does not split over "
-            f"{sharding.mesh_size(mesh)} devices: use a multiple of {step}, or "
-            "set mesh.devices"
+            f"train.batch_size={batch_size} does not split over {devices} devices: use a "
+            f"multiple of {step}, or set mesh.devices"
         )
 
 
@@ -583,7 +582,7 @@ def fit_autoencoder(spec: ae.Spec, data: TrainingData, options: TrainOptions) ->
     if saved is not None and saved["done"]:
         return _result(trainer, state, selected_by, saved["stopped_early"], restored=True)
     resumed_epoch, spent = state.epoch, state.seconds
-    check_batch_splits(trainer.batch_size, o.mesh)
+    check_batch_splits(trainer.batch_size, sharding.mesh_size(o.mesh))
     train_dev, state = _on_devices(train_images, state, o.mesh)
     o.log.begin(state.step)
     if state.epoch == 0:  # the starting weights compete too

@@ -4,11 +4,12 @@ best recall@1 on the validation places; its state is the model (``ae.ModelState`
 
 The model learns from both seasons' training images: the images themselves for
 ``reconstruct``, the aligned places' pairs for the paired objectives
-(``vpr_jax.encoders.objectives``). With ``input=residual`` it first removes the leading
-components of the pair's PCA fit, as many as PCA change removal picks on the validation
-places (``residual_input``); with ``train.augment=auto`` a model is trained with and one
-without augmentation and the better on validation is kept. Every objective starts from the
-same initial weights (the key of the seed and the method's name).
+(``vpr_jax.encoders.objectives``); each objective is rows of its own. With
+``input=residual`` it first removes the leading ``residual_pcs`` components of the pair's
+PCA fit. Its training settings (``TrainingSettings``: learning rate, augmentation,
+temperature...) are its own, each ``train.*``'s value unless given, and a list for one is a
+sweep axis like any other (``train.augment=auto``: ``augment=[true,false]``). Every
+objective starts from the same initial weights (the key of the seed and the method's name).
 """
 
 from __future__ import annotations
@@ -25,24 +26,60 @@ import numpy as np
 from vpr_jax import sharding
 from vpr_jax.config import TrainConfig, plain, training_identity
 from vpr_jax.encoders import autoencoders as ae
-from vpr_jax.encoders import objectives, pca
+from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import (
     Start,
     TrainingData,
     TrainOptions,
     TrainResult,
-    check_batch_splits,
     fit_autoencoder,
 )
 from vpr_jax.errors import UserError
 from vpr_jax.files import lock_folder
-from vpr_jax.methods.contract import Method, PCAFit, Report, Training, TrainingSet, Validation
+from vpr_jax.methods.contract import (
+    ROWS,
+    Method,
+    PCAFit,
+    Report,
+    Training,
+    TrainingSet,
+    Validation,
+)
+from vpr_jax.methods.pca import shared
 
 INPUTS = ("pixels", "residual")  # what the model sees: <method>.input
 # How the weights start (<method>.init): drawn, or at a linear solution of the model's own
 # inputs (``ae.pca_start``, ``ae.lda_start``): each direction a unit beside its negative.
 INITS = ("random", "pca", "whitened_pca", "lda")
 LDA_SHRINKAGE = 0.1  # init=lda regularises as the lda method does by default
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainingSettings:
+    """The training settings an auto-encoder has of its own: ``train.*``'s meaning, and
+    ``train.*``'s value where not given (the sweep fills them in)."""
+
+    epochs: int | None = None  # at most; early stopping may end sooner
+    batch_size: int | None = None
+    learning_rate: float | None = None
+    optimizer: str | None = None  # adam | adamw | sgd
+    patience: int | None = None  # epochs without a better validation recall@1
+    augment: Any = None  # true (the seed's), false, place (train.augment=auto: the axis)
+    temperature: float | None = None  # the contrastive objective's
+    contrastive_radius: int | None = None  # the contrastive objective's route mask
+    start_decay: float | None = None  # the pull towards the starting weights (L2-SP)
+
+    def training(self) -> TrainConfig:
+        """These settings as ``train.*`` (checked there); None where not yet filled in."""
+        return TrainConfig(**{k: v for k, v in _training_values(self).items() if v is not None})
+
+
+TRAINING_FIELDS = tuple(f.name for f in dataclasses.fields(TrainingSettings))
+
+
+def _training_values(settings: Any) -> dict:
+    values = settings if isinstance(settings, dict) else dataclasses.asdict(settings)
+    return {k: values[k] for k in TRAINING_FIELDS}
 
 
 def start_of(init: str, train: np.ndarray, aligned) -> Start | None:
@@ -56,11 +93,9 @@ def start_of(init: str, train: np.ndarray, aligned) -> Start | None:
     return None
 
 
-def check_common(
-    group: str, objective: tuple[str, ...], input: str, epochs, init: str = "random"
-) -> None:
-    """The settings both auto-encoders have: objectives, input, epochs, start."""
-    chosen = list(objective)
+def check_common(group: str, settings: Any) -> None:
+    """The settings both auto-encoders have: objectives, input, start, training."""
+    chosen = list(settings.objective)
     unknown = [o for o in chosen if o not in objectives.OBJECTIVES]
     checks = (
         (len(chosen) > 0, f"{group}.objective is empty: e.g. {group}.objective=cross_season"),
@@ -73,13 +108,26 @@ def check_common(
             len(set(chosen)) == len(chosen),
             f"{group}.objective={chosen} repeats one: name each once",
         ),
-        (input in INPUTS, f"{group}.input={input} is unknown: use {' or '.join(INPUTS)}"),
-        (epochs is None or epochs >= 1, f"{group}.epochs={epochs} must be >= 1"),
-        (init in INITS, f"{group}.init={init} is unknown: use {', '.join(INITS)}"),
+        (
+            settings.input in INPUTS,
+            f"{group}.input={settings.input} is unknown: use {' or '.join(INPUTS)}",
+        ),
+        (
+            settings.init in INITS,
+            f"{group}.init={settings.init} is unknown: use {', '.join(INITS)}",
+        ),
+        (
+            settings.residual_pcs >= 1,
+            f"{group}.residual_pcs={settings.residual_pcs} must be >= 1 (pixels remove none)",
+        ),
     )
     for ok, message in checks:
         if not ok:
             raise UserError(message)
+    try:
+        settings.training()
+    except UserError as err:  # train.*'s checks, named for this method
+        raise UserError(str(err).replace("train.", f"{group}.", 1)) from None
 
 
 def without_aligned_places(group: str, settings: Any, training: TrainingSet, log) -> Any:
@@ -108,48 +156,36 @@ def without_aligned_places(group: str, settings: Any, training: TrainingSet, log
     return dataclasses.replace(settings, objective=kept)
 
 
-def check_devices(settings: Any, train: TrainConfig, mesh) -> None:
-    """Data-parallel training splits each batch's examples evenly over the devices (a
-    paired example is a place's two images)."""
+def check(group: str, settings: Any, training: TrainingSet, log) -> Any:
+    """What the data and the devices allow: the paired objectives and the lda start need
+    aligned places; a residual input needs its components in the shared PCA fit; each
+    batch splits its examples evenly over the devices (a paired example is a place's two
+    images)."""
+    settings = without_aligned_places(group, settings, training, log)
+    if settings.input == "residual":
+        k, limit = settings.residual_pcs, training.pca_limit
+        if k >= limit or k > training.pca_components:
+            raise UserError(
+                f"{group}.residual_pcs={k} removes more components than the pair's PCA fit "
+                f"holds ({min(limit - 1, training.pca_components)}): use a smaller count, or "
+                f"set {shared.fix}"
+            )
     per_example = max(objectives.examples_per_image(o) for o in settings.objective)
-    check_batch_splits(train.batch_size, mesh, per_example)
+    step = training.devices * per_example
+    if settings.batch_size % step:
+        raise UserError(
+            f"{group}.batch_size={settings.batch_size} (train.batch_size unless set) does not "
+            f"split over {training.devices} devices: use a multiple of {step}, or set "
+            "mesh.devices"
+        )
+    return settings
 
 
-def pca_components(settings: Any, training: TrainingSet) -> int:
-    """A residual input removes up to the largest removed count of the pair's PCA fit."""
-    return max(training.removed_pcs) if settings.input == "residual" else 0
-
-
-class ResidualInput(NamedTuple):
-    """What a residual-input model takes out of every image: PCA's validation-selected
-    count of the pair's leading components."""
-
-    k: int
-    val_recall_at_1: float  # PCA's, with k removed
-    fixed: dict | None  # ae.with_removal's arrays (None when k = 0: the images themselves)
-
-
-def residual_input(pca_fit: PCAFit, validation: Validation) -> ResidualInput:
-    """The count PCA change removal chooses on the validation places, by the sweep's rule:
-    the best validation recall@1 among the sweep's removed counts, then margin, then the
-    fewest."""
-    state = pca_fit.state
-    counts = sorted(k for k in pca_fit.removed_pcs if k <= state.components.shape[0])
-    scores = validation.scores(lambda x: pca.suffix_descriptors(state, x), tuple(counts))
-    best = max(range(len(counts)), key=lambda i: scores[i])  # the first of equals
-    k = counts[best]
-    fixed = {"removal_mean": state.mean, "removal_basis": state.components[:k]} if k else None
-    return ResidualInput(k, float(scores[best][0]), fixed)
-
-
-def augment_variants(settings: TrainConfig) -> tuple[tuple[str, TrainConfig], ...]:
-    """(folder suffix, settings) of each model ``train.augment`` asks for: one, or with
-    ``auto`` the model with augmentation and the one without."""
-    if settings.augment != "auto":
-        return (("", settings),)
-    return (
-        ("_augmented", dataclasses.replace(settings, augment=True)),
-        ("_plain", dataclasses.replace(settings, augment=False)),
+def needs(settings: Any) -> tuple[str, ...]:
+    """The validation places, a training folder and the devices; a residual input the
+    pair's PCA fit too."""
+    return ("validation", "training", "mesh") + (
+        ("pca_fit",) if settings is not None and settings.input == "residual" else ()
     )
 
 
@@ -179,64 +215,47 @@ def fit_model(
     mesh,
     pca_fit: PCAFit | None,
 ) -> ae.ModelState:
-    """Train (or resume, or restore) the fit's model and keep its best epoch; with
-    ``train.augment=auto`` the better of two models on validation (the first on a tie)."""
-    removal = residual_input(pca_fit, validation) if pca_fit is not None else None
-    spec = fit.model.spec(removal.k if removal else 0)
-    epochs = fit.values["epochs"] or training.settings.epochs  # <method>.epochs overrides
-    settings = dataclasses.replace(training.settings, epochs=epochs)
+    """Train (or resume, or restore) the fit's model and keep its best epoch."""
+    k = fit.values["residual_pcs"] if fit.values["input"] == "residual" else 0
+    removal = None
+    if k:
+        state = pca_fit.state
+        removal = {"removal_mean": state.mean, "removal_basis": state.components[:k]}
+    spec = fit.model.spec(k)
+    settings = dataclasses.replace(
+        TrainConfig(**_training_values(fit.values)),
+        checkpoint_every_s=training.checkpoint_every_s,
+    )
     key = jax.random.fold_in(key, zlib.crc32(fit.name.encode()))
     objective = fit.values["objective"]
     data = TrainingData(
         objectives.training_data(objective, train),
         objectives.training_data(objective, validation.images),
     )
-    trained = [
-        _train(fit, suffix, spec, variant, data, key, removal, validation, training, mesh)
-        for suffix, variant in augment_variants(settings)
-    ]
-    chosen = better_model(trained)
-    best = trained[chosen]
-    if len(trained) > 1:
-        variants = augment_variants(settings)
-        kept = variants[chosen][0]
-        scores = ", ".join(
-            f"{suffix.strip('_')} {r.best_score:.3f}"
-            for (suffix, _), r in zip(variants, trained, strict=True)
-        )
-        training.log(kept).line(
-            f"{training.name}{kept}: kept, the better on the validation places (recall@1 {scores})"
-        )
+    result = _train(fit, spec, settings, data, key, removal, validation, training, mesh)
     return ae.ModelState(
-        params=jax.tree.map(sharding.to_host, best.params),  # encoded on one device
-        epochs=np.int32(best.epochs),
-        stopped_early=np.bool_(best.stopped_early),
-        train_seconds=np.float32(sum(r.train_seconds for r in trained)),
+        params=jax.tree.map(sharding.to_host, result.params),  # encoded on one device
+        epochs=np.int32(result.epochs),
+        stopped_early=np.bool_(result.stopped_early),
+        train_seconds=np.float32(result.train_seconds),
         spec=spec,
         image_shape=tuple(int(s) for s in train.shape[1:3]),
     )
 
 
-def better_model(trained: list[TrainResult]) -> int:
-    """Which of the models ``train.augment=auto`` trained is kept: the best validation
-    score, the first on a tie. By position: models hold arrays, so they do not compare."""
-    return max(range(len(trained)), key=lambda i: trained[i].best_score)
-
-
 def _train(
     fit: Fit,
-    suffix: str,
     spec: ae.Spec,
     settings: TrainConfig,
     data: TrainingData,
     key: jax.Array,
-    removal: ResidualInput | None,
+    removal: dict | None,
     validation: Validation,
     training: Training,
     mesh,
 ) -> TrainResult:
     """One model: trained, resumed or restored in its checkpoint folder."""
-    folder = training.folder / f"training{suffix}" if training.folder is not None else None
+    folder = training.folder / "training" if training.folder is not None else None
     if folder is not None and jax.process_index() == 0:
         # Logdirs of one name under different parents share this folder: one writer.
         lock_folder(
@@ -244,12 +263,11 @@ def _train(
             "checkpoint folder",
             "wait for it to finish, or give this logdir another name (or set train.checkpoint_dir)",
         )
-    log = training.log(suffix)
-    name = training.name + suffix
+    log = training.log("")
     if removal is not None:
         log.line(
-            f"{name}: input residual, {removal.k} leading components removed (PCA's "
-            f"validation-selected count, validation recall@1 {removal.val_recall_at_1:.3f})"
+            f"{training.name}: input residual, {len(removal['removal_basis'])} leading "
+            "components of the pair's PCA fit removed"
         )
     options = TrainOptions(
         key=key,
@@ -263,9 +281,9 @@ def _train(
             "train": training_identity(settings),
         },
         log=log,
-        name=name,
+        name=training.name,
         mesh=mesh,
-        fixed=removal.fixed if removal else None,
+        fixed=removal,
         start=fit.model.start,
     )
     try:
@@ -307,12 +325,10 @@ def autoencoder_method(
         fit=fit,
         encode=ae.encode_state,
         settings=settings,
-        uses=("validation", "training", "mesh", "pca_fit"),
+        axes={"objective": ROWS},
+        needs=needs,
         random=True,
-        variants="objective",
-        check=lambda s, training, log: without_aligned_places(name, s, training, log),
-        check_devices=check_devices,
-        pca_components=pca_components,
+        check=lambda s, training, log: check(name, s, training, log),
         report=report,
     )
 

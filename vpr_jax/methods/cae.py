@@ -35,9 +35,10 @@ MODELS = {
 
 
 @dataclasses.dataclass(frozen=True)
-class Settings:
-    """``cae.*``: optionally f x f pixel blocks to channels, then per level a conv (ReLU) +
-    2x2 max-pool, a 3x3 conv to the code; a mirrored decoder."""
+class Settings(autoencoder.TrainingSettings):
+    """``cae.*`` (and its training settings, ``train.*``'s where not given): optionally
+    f x f pixel blocks to channels, then per level a conv (ReLU) + 2x2 max-pool, a 3x3 conv
+    to the code; a mirrored decoder."""
 
     model: str = "fast"  # fast | calc: a named architecture (MODELS); the keys below override
     channels: tuple[int, ...] | None = None  # widths, one per level
@@ -45,9 +46,9 @@ class Settings:
     code_channels: int | None = None  # code = (32 / 2^levels / f) x (64 / ...) x this values
     space_to_depth: int | None = None  # f: f x f pixel blocks become channels first (1: none)
     standardise: bool = True  # each image to zero mean, std 1/4 before the encoder
-    epochs: int | None = None  # overrides train.epochs for the CAE
     objective: tuple[str, ...] = ("reconstruct", "cross_season")  # as fae.objective
     input: str = "pixels"  # pixels | residual: as fae.input
+    residual_pcs: int = 10  # as fae.residual_pcs
     # random: the convolutions alone, drawn; pca, whitened_pca or lda: a linear branch of
     # linear_units units beside them, started as fae.init starts the FAE, and the code
     # convolution scaled down (ae.CONV_START_SCALE), so the CAE starts at the linear
@@ -56,7 +57,7 @@ class Settings:
     linear_units: int = 512  # the linear branch's units (code values), with an init
 
     def __post_init__(self):
-        autoencoder.check_common("cae", self.objective, self.input, self.epochs, self.init)
+        autoencoder.check_common("cae", self)
         if self.linear_units < 2:
             raise UserError(f"cae.linear_units={self.linear_units} must be >= 2")
         if self.model not in MODELS:

@@ -8,13 +8,15 @@ model: a NamedTuple of pure functions):
 None or ``(database season, query season)`` with row i one place; ``key``: a ``jax.random``
 key of one of the sweep's ``seeds``; ``settings``: the method's settings of this fit (a
 list given for one is a sweep axis, ``vpr_jax.methods.settings``); ``resources``: what the
-method ``uses`` from the runner (``Resources``). ``state`` is a pytree of arrays and
-``encode`` is pure and jittable; its rows are compared by cosine.
+method ``needs`` from the runner. ``state`` is a pytree of arrays and ``encode`` is pure and
+jittable; its rows are compared by cosine.
 
-Everything beside ``fit`` and ``encode`` is an optional declaration the runner reads
-instead of checking the method's name; ``as_method`` reads them from any object (a user's
-class with static methods and class attributes has the same shape as a built-in
-``Method``). docs/methods.md, "Your own method", documents each with an example.
+Beside ``fit`` and ``encode`` a method declares at most six things, each read by the runner
+instead of the method's name (docs/methods.md, "Your own method"): its ``settings``, how its
+settings vary (``axes``), what it ``needs``, whether it is ``random``, how it ``check``-s
+its settings against the training set and the devices, and what it ``report``-s.
+``as_method`` reads them from any object (a user's class with static methods and class
+attributes has the same shape as a built-in ``Method``).
 """
 
 from __future__ import annotations
@@ -27,9 +29,17 @@ import numpy as np
 
 from vpr_jax.errors import UserError
 
-# What a method's fit may ask the runner for, by keyword (``uses``).
+# How a setting's values relate to fits (``axes``); a setting not named there is a fit per
+# value, chosen among on the validation places (a list given for it is a sweep axis).
+SERVED = "served"  # one fit serves every value: encode takes it, fit does not
+SUFFIX = "suffix"  # ... and one encoding: value v's descriptors are encode(state, x)[:, v:]
+ROWS = "rows"  # every value is rows of its own, never chosen among (the objectives)
+AXIS_KINDS = (SERVED, SUFFIX, ROWS)
+# What a method may need (``needs``): aligned training places, and what its fit takes from
+# the runner by keyword.
+ALIGNED = "aligned"
 RESOURCES = ("pca_fit", "validation", "training", "mesh")
-SWEEP_AXES = ("removed_pcs",)  # the sweep's own axes a method may take (``sweeps``)
+NEEDS = (ALIGNED, *RESOURCES)
 
 
 class NotScored(Exception):
@@ -54,32 +64,22 @@ class Report(NamedTuple):
 
 
 class TrainingSet(NamedTuple):
-    """What a method's ``check`` may ask of the training set before anything is fitted."""
+    """What a method's ``check`` may ask before anything is fitted: the training set, the
+    devices, and how its settings were given."""
 
     n_images: int  # both seasons' training images of a pair
     n_pixels: int
     aligned: bool  # whether the pair has aligned training places
-    removed_pcs: tuple[int, ...]  # the sweep's removed counts, trimmed to the training set
+    swept: dict[str, tuple]  # the values of each of the method's settings given as a list
     given: frozenset[str]  # the method's settings named on the command line
     asked: frozenset[str]  # ... or by a preset that names its data (what it asks for by name)
+    pca_components: int = 0  # components the pair's shared PCA fit holds
+    devices: int = 1  # devices a training batch is split over
 
     @property
     def pca_limit(self) -> int:
         """Principal components of the training images: min(n - 1, pixels)."""
         return min(self.n_images - 1, self.n_pixels)
-
-
-class SharedFit(NamedTuple):
-    """The fit a pair shares with every method that ``uses`` ``pca_fit``. It holds a count
-    of components that depends on the data and its own settings only, never on which
-    methods use it (each takes the leading ones it needs): a method's numbers do not depend
-    on what else is in ``methods``, and its shapes (so its compiled code) not on its own
-    settings."""
-
-    components: Callable[[Any, int, int], int]  # (settings, n_images, n_pixels) -> the
-    # components the fit holds
-    fit: Callable[..., Any]  # (train, n_components, settings, mesh, seed) -> its state
-    fix: str  # how a user gets more components than it holds (an error's advice)
 
 
 class Method(NamedTuple):
@@ -89,26 +89,15 @@ class Method(NamedTuple):
     encode: Callable[..., Any]
     settings: type | None = None  # a frozen dataclass: names, defaults and checks of the
     # settings; None: any keyword settings (a user's plugin.<name>.*), unchecked
-    sweeps: tuple[str, ...] = ()  # the sweep's own axes it takes as settings (removed_pcs)
-    serves: tuple[str, ...] = ()  # settings one fit serves: encode takes them, fit does not
-    suffix: str | Callable[[Any], str] = ""  # a served setting v whose descriptors are
-    # encode(state, x)[:, v:]: one encoding and one matching pass serve every value (a
-    # callable: of the settings)
-    needs_alignment: bool = False  # fit needs ``aligned`` (refused on data without it)
-    uses: tuple[str, ...] = ()  # resources fit takes by keyword (RESOURCES)
+    axes: dict[str, str] | Callable[[Any], dict[str, str]] = {}  # setting -> SERVED,
+    # SUFFIX or ROWS (a callable: of the settings)
+    needs: tuple[str, ...] | Callable[[Any], tuple[str, ...]] = ()  # of NEEDS (a callable:
+    # of the settings)
     random: bool = True  # fit draws from its key: fitted once per seed of ``seeds``
-    variants: str = ""  # a setting whose values are rows of their own, never chosen among
     check: Callable[[Any, TrainingSet, Callable], Any] | None = None  # (settings, training
-    # set, log) -> the settings fitted to it (notes in the log), or UserError
-    most_removed: Callable[[Any, TrainingSet], tuple[int, str]] | None = None  # (settings,
-    # training set) -> the largest removed count it serves there, and why (trims removed_pcs)
-    pca_components: Callable[[Any, TrainingSet], int] | None = None  # (settings, training
-    # set) -> leading components of the pair's PCA fit it needs (0: none)
+    # set, log) -> the settings fitted to it (notes in the log), None to leave this
+    # combination out (with a note), or UserError
     report: Callable[[Any, dict], Report] | None = None  # (state, this cell's settings)
-    check_devices: Callable[[Any, Any, Any], None] | None = None  # (settings, train.*, the
-    # device mesh): what the devices must allow, checked before anything is written
-    shared_fit: SharedFit | None = None  # the fit a pair shares with every method that
-    # uses pca_fit (the method vpr_jax.method_table.SHARED_FIT names offers it)
 
 
 class PCAFit(NamedTuple):
@@ -116,14 +105,26 @@ class PCAFit(NamedTuple):
 
     state: Any  # vpr_jax.encoders.pca.PCAState
     seconds: float
-    removed_pcs: tuple[int, ...]  # the sweep's removed counts (what a residual input picks from)
     asked: int = 0  # components asked for; the state holds fewer where the training
     # images' numerical rank is lower (vpr_jax.encoders.pca.numerical_rank)
 
 
+class SharedFit(NamedTuple):
+    """A fit a pair shares with every method that needs it, declared by the method that
+    offers it (``vpr_jax.method_table.OFFERS``). It holds a count of components that
+    depends on the data and its own settings only, never on which methods use it (each
+    takes the leading ones it needs): a method's numbers do not depend on what else is in
+    ``methods``, and its shapes (so its compiled code) not on its own settings."""
+
+    components: Callable[[Any, int, int], int]  # (settings, n_images, n_pixels) -> the
+    # components the fit holds
+    fit: Callable[..., Any]  # (train, n_components, settings, mesh, seed) -> its state
+    fix: str  # how a user gets more components than it holds (an error's advice)
+
+
 class Validation(NamedTuple):
     """The validation places (resource ``validation``), scored as the sweep scores them:
-    what the auto-encoders pick epochs by and residual inputs pick a count by."""
+    what the auto-encoders pick epochs by."""
 
     images: np.ndarray  # both seasons' validation places, database season first (aligned
     # pairs), or a benchmark's held-out queries
@@ -143,17 +144,42 @@ class Training(NamedTuple):
     log: Callable[[str], Any]  # suffix -> a training log (encoders.train.TrainingLog)
     identity: dict  # what besides its settings decides the weights: data, split, seed, pair
     name: str  # how progress lines call this fit, e.g. "summer-fall fae_cross_season"
-    settings: Any  # the sweep's train.* (vpr_jax.config.TrainConfig)
+    checkpoint_every_s: float  # seconds between an epoch's checkpoints (train.*)
 
 
-def _tuple_of_names(value: Any, allowed: tuple[str, ...] | None, what: str, ref: str) -> tuple:
+# The declarations of the contract before 2026-12-05 and what replaces each.
+_REPLACED = {
+    "serves": "axes={'<setting>': 'served'}",
+    "suffix": "axes={'<setting>': 'suffix'}",
+    "sweeps": "a removed_pcs setting (the sweep hands removed_pcs to methods that have one)",
+    "variants": "axes={'<setting>': 'rows'}",
+    "uses": "needs=(...)",
+    "needs_alignment": "needs=('aligned', ...)",
+    "most_removed": "check (return None to leave a combination out)",
+    "pca_components": "check (training.pca_components says what the shared fit holds)",
+    "check_devices": "check (training.devices)",
+    "shared_fit": "a SharedFit in the offering method's module, named in method_table.OFFERS",
+}
+
+
+def _names(value: Any, allowed: tuple[str, ...], what: str, ref: str) -> tuple[str, ...]:
     names = (value,) if isinstance(value, str) else tuple(value)
-    if not all(isinstance(n, str) for n in names) or (
-        allowed is not None and set(names) - set(allowed)
-    ):
-        known = f": use names of {', '.join(allowed)}" if allowed else ""
-        raise UserError(f"method {ref}: {what}={value!r} is not a tuple of names{known}")
+    if not all(isinstance(n, str) for n in names) or set(names) - set(allowed):
+        raise UserError(
+            f"method {ref}: {what}={value!r} is not a tuple of names of {', '.join(allowed)}"
+        )
     return names
+
+
+def _axes(value: Any, ref: str) -> dict[str, str]:
+    if not isinstance(value, dict) or not all(
+        isinstance(k, str) and v in AXIS_KINDS for k, v in value.items()
+    ):
+        raise UserError(
+            f"method {ref}: axes={value!r} is not a dict of setting names to "
+            f"{', '.join(repr(k) for k in AXIS_KINDS)}"
+        )
+    return dict(value)
 
 
 def as_method(obj: Any, ref: str) -> Method:
@@ -167,18 +193,31 @@ def as_method(obj: Any, ref: str) -> Method:
             f"method {ref} has no callable {' or '.join(missing)}: give it fit(train, "
             "aligned, key) -> state and encode(state, images) -> (n, d) (docs/methods.md)"
         )
-    found = {f: getattr(obj, f) for f in Method._fields if hasattr(obj, f)}
-    method = Method(**found)
+    old = [name for name in _REPLACED if hasattr(obj, name)]
+    if old:
+        raise UserError(
+            f"method {ref} declares {old[0]}, which the contract no longer has: use "
+            f"{_REPLACED[old[0]]} (docs/methods.md, 'Your own method')"
+        )
+    method = Method(**{f: getattr(obj, f) for f in Method._fields if hasattr(obj, f)})
     return method._replace(
-        sweeps=_tuple_of_names(method.sweeps, SWEEP_AXES, "sweeps", ref),
-        serves=_tuple_of_names(method.serves, None, "serves", ref),
-        uses=_tuple_of_names(method.uses, RESOURCES, "uses", ref),
+        axes=method.axes if callable(method.axes) else _axes(method.axes, ref),
+        needs=method.needs if callable(method.needs) else _names(method.needs, NEEDS, "needs", ref),
     )
 
 
-def suffix_of(method: Method, settings: Any) -> str:
-    """The served setting whose values are feature suffixes for these settings ('' none)."""
-    return method.suffix(settings) if callable(method.suffix) else method.suffix
+def axes_of(method: Method, settings: Any) -> dict[str, str]:
+    """How the method's settings vary, for these settings."""
+    return method.axes(settings) if callable(method.axes) else method.axes
+
+
+def needs_of(method: Method, settings: Any) -> tuple[str, ...]:
+    """What the method needs, for these settings."""
+    return method.needs(settings) if callable(method.needs) else method.needs
+
+
+def needs_alignment(method: Method, settings: Any) -> bool:
+    return ALIGNED in needs_of(method, settings)
 
 
 def report_of(method: Method, state: Any, settings: dict) -> Report:

@@ -20,10 +20,10 @@ _EPS = 1e-12
 
 
 class Part(NamedTuple):
-    """A cell's part of a fit's descriptors: its setting and removed count."""
+    """A cell's part of a fit's descriptors: its settings and its run."""
 
-    setting: str  # results.csv's setting: the method's swept settings ("" none)
-    removed_pcs: int  # 0 for a method without the removed-PC axis
+    settings: dict  # the cell's swept settings, by name ({} none)
+    setting: str  # their label less the sweep's keys: results.csv's setting ("" none)
     run: str  # its run's name less the pair and ds: fae_cross_season, ica_n_components=64_k005
 
 

@@ -11,8 +11,8 @@ from jaxtyping import Array, Float
 
 from vpr_jax.encoders import diff_pca, pca
 from vpr_jax.errors import UserError
-from vpr_jax.methods.contract import Method, Report, TrainingSet
-from vpr_jax.methods.pca import beyond_rank
+from vpr_jax.methods.contract import SUFFIX, Method, Report, TrainingSet
+from vpr_jax.methods.pca import beyond_rank, removed_count_fits
 
 
 @dataclasses.dataclass(frozen=True)
@@ -20,6 +20,7 @@ class Settings:
     """``diff_pca.*``."""
 
     solver: str = "auto"  # auto | covariance | gram | subspace: PCA of the differences
+    removed_pcs: int = 0  # leading change directions removed (the sweep's removed_pcs: one fit)
 
     def __post_init__(self):
         if self.solver not in pca.SOLVERS:
@@ -38,25 +39,26 @@ def encode(state, images: Float[Array, "n h w"], removed_pcs: int = 0) -> Float[
     return diff_pca.suffix_descriptors(state, images)[:, removed_pcs:]
 
 
-def _changes(training: TrainingSet) -> int:
-    """Directions the season differences of the aligned places can span."""
-    return min(training.n_images // 2, training.n_pixels)
-
-
-def most_removed(settings: Settings, training: TrainingSet) -> tuple[int, str]:
-    n = training.n_images // 2
-    most = min(training.pca_limit - 1, _changes(training))
-    return most, f" and {n} aligned places span at most that many changes"
-
-
-def check(settings: Settings, training: TrainingSet, log) -> Settings:
-    most = _changes(training)
-    if max(training.removed_pcs) > most:
-        raise UserError(
-            f"removed_pcs up to {max(training.removed_pcs)} for diff_pca, but the season "
-            f"differences of {training.n_images // 2} aligned training places span at most "
-            f"{most} directions: use counts up to {most}, or leave diff_pca out of methods"
+def check(settings: Settings, training: TrainingSet, log) -> Settings | None:
+    """Counts the training images serve (below their PCA's components) and the season
+    differences of the aligned places span (up to one per place)."""
+    k, limit, places = settings.removed_pcs, training.pca_limit, training.n_images // 2
+    changes = min(places, training.n_pixels)
+    why = f"PCA of {training.n_images} training images has {limit} components"
+    if not removed_count_fits("diff_pca", k, limit, why, training, log):
+        return None
+    if k > changes:
+        if "removed_pcs" in training.given:
+            raise UserError(
+                f"removed_pcs up to {k} for diff_pca, but the season differences of {places} "
+                f"aligned training places span at most {changes} directions: use counts up "
+                f"to {changes}, or leave diff_pca out of methods"
+            )
+        log(
+            f"note: diff_pca removed_pcs={k} left out: {places} aligned places span at "
+            f"most {changes} changes (set removed_pcs to choose)"
         )
+        return None
     return settings
 
 
@@ -72,13 +74,9 @@ method = Method(
     fit=fit,
     encode=encode,
     settings=Settings,
-    sweeps=("removed_pcs",),
-    serves=("removed_pcs",),
-    suffix="removed_pcs",
-    needs_alignment=True,
-    uses=("mesh",),
+    axes={"removed_pcs": SUFFIX},  # one fit and one encoding serve every count
+    needs=("aligned", "mesh"),
     random=False,
     check=check,
-    most_removed=most_removed,
     report=_report,
 )

@@ -15,18 +15,18 @@ from vpr_jax.methods.contract import Report
 
 
 @dataclasses.dataclass(frozen=True)
-class Settings:
-    """``fae.*``."""
+class Settings(autoencoder.TrainingSettings):
+    """``fae.*``: its own and its training settings (``train.*``'s where not given)."""
 
     hidden: int = 256  # code length: the place descriptor
-    epochs: int | None = None  # overrides train.epochs for the FAE (its epochs are short)
     # One cell per objective: reconstruct (the seed's), cross_season and/or contrastive
     # (see vpr_jax.encoders.objectives); one value or a list.
     objective: tuple[str, ...] = ("reconstruct", "cross_season")
-    # pixels: the images; residual: the images less the pair's leading k principal
-    # components, k chosen for PCA on the validation places (the code cannot be spent on
-    # the condition PCA change removal throws away).
+    # pixels: the images; residual: the images less the pair's leading residual_pcs
+    # principal components (the code cannot be spent on the condition PCA change removal
+    # throws away).
     input: str = "pixels"
+    residual_pcs: int = 10  # components a residual input removes (a list: an axis)
     # random: drawn weights; pca: the linear start, the hidden layer at the PCA solution of
     # its own inputs for hidden // 2 components, each unit beside its negative
     # (vpr_jax.encoders.autoencoders.pca_start): training keeps only what beats it;
@@ -40,7 +40,7 @@ class Settings:
     standardise: bool = True  # each image to zero mean, std 1/4 instead (input_centre unused)
 
     def __post_init__(self):
-        autoencoder.check_common("fae", self.objective, self.input, self.epochs, self.init)
+        autoencoder.check_common("fae", self)
         checks = (
             (self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1"),
             (

@@ -10,6 +10,7 @@ import numpy as np
 from vpr_jax.encoders import ica
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, NotScored, PCAFit, Report, TrainingSet
+from vpr_jax.methods.pca import removed_count_fits, shared
 
 
 @dataclasses.dataclass(frozen=True)
@@ -22,6 +23,8 @@ class Settings:
     max_iter: int = 200  # fixed-point updates at most
     tol: float = 1e-4  # stop when max |abs(diag(W_new W^T)) - 1| < tol
     n_init: int = 1  # random initialisations run at once; the best negentropy is kept
+    removed_pcs: int = 0  # leading components removed before whitening (the sweep's
+    # removed_pcs: a fit per count)
 
     def __post_init__(self):
         n = self.n_components
@@ -58,42 +61,52 @@ def encode(state: ica.ICAState, images):
     return ica.encode(state, images)
 
 
-def most_removed(settings: Settings, training: TrainingSet) -> tuple[int, str]:
-    """A count of components named on the command line takes precedence over the default
-    removed counts: those it leaves no room for are dropped."""
-    n = settings.n_components
-    if n == "all" or "n_components" not in training.given:
-        return training.pca_limit - 1, ""
-    return training.pca_limit - n, f", {n} of them for ICA (ica.n_components)"
+def _served_counts(settings: Settings, training: TrainingSet) -> tuple[int, str]:
+    """(the count a removed count must stay below, why): the training images' components,
+    less those a named ``n_components`` takes where the removed counts are defaults (named
+    counts and a named size that do not fit are refused below, never changed)."""
+    n, limit = settings.n_components, training.pca_limit
+    named = {"n_components", "removed_pcs"} <= training.given
+    if n == "all" or "n_components" not in training.given or named:
+        return limit, f"PCA of {training.n_images} training images has {limit} components"
+    return limit - n + 1, (
+        f"PCA of {training.n_images} training images has {limit} components, {n} of them "
+        "for ICA (ica.n_components)"
+    )
 
 
-def check(settings: Settings, training: TrainingSet, log) -> Settings:
-    """The default count of components is capped to what the removed counts leave (one
-    note); a count named on the command line that does not fit is refused."""
-    n, limit, most = settings.n_components, training.pca_limit, max(training.removed_pcs)
-    if n == "all":
-        return settings
-    if "n_components" not in training.given and n > limit - most >= 1:
+def check(settings: Settings, training: TrainingSet, log) -> Settings | None:
+    """Removed counts beyond the training set are left out (named ones refused); the
+    default count of components is capped to what the largest removed count leaves (one
+    note); a count named on the command line that does not fit is refused; the shared fit
+    must hold what the whitening reaches."""
+    n, limit, k = settings.n_components, training.pca_limit, settings.removed_pcs
+    most, why = _served_counts(settings, training)
+    if not removed_count_fits("ica", k, most, why, training, log):
+        return None
+    counts = [c for c in training.swept.get("removed_pcs", (k,)) if c < most]
+    top = max(counts)
+    if n != "all" and "n_components" not in training.given and n > limit - top >= 1:
         log(
-            f"note: ica.n_components={n} capped to {limit - most}: PCA of "
+            f"note: ica.n_components={n} capped to {limit - top}: PCA of "
             f"{training.n_images} training images has {limit} components and removed_pcs "
-            f"goes up to {most} (set ica.n_components to choose)"
+            f"goes up to {top} (set ica.n_components to choose)"
         )
-        return dataclasses.replace(settings, n_components=limit - most)
-    if most + n > limit:
+        settings = dataclasses.replace(settings, n_components=limit - top)
+        n = settings.n_components
+    if n != "all" and top + n > limit:
         raise UserError(
-            f"ica.n_components={n} with removed_pcs up to {most} needs {most + n} components "
+            f"ica.n_components={n} with removed_pcs up to {top} needs {top + n} components "
             f"but PCA of {training.n_images} training images has {limit}: use "
-            f"ica.n_components <= {limit - most}, ica.n_components=all, or smaller removed_pcs"
+            f"ica.n_components <= {limit - top}, ica.n_components=all, or smaller removed_pcs"
+        )
+    need = limit if n == "all" else k + n
+    if need > training.pca_components:
+        raise UserError(
+            f"method ica needs {need} components of the pair's PCA fit, which holds "
+            f"{training.pca_components}: set {shared.fix}"
         )
     return settings
-
-
-def pca_components(settings: Settings, training: TrainingSet) -> int:
-    """The components its whitening reaches: every one for ``n_components=all``."""
-    if settings.n_components == "all":
-        return training.pca_limit
-    return max(training.removed_pcs) + settings.n_components
 
 
 def _report(state: ica.ICAState, settings: dict) -> Report:
@@ -119,11 +132,8 @@ method = Method(
     fit=fit,
     encode=encode,
     settings=Settings,
-    sweeps=("removed_pcs",),
-    uses=("pca_fit",),
+    needs=("pca_fit",),
     random=True,
     check=check,
-    most_removed=most_removed,
-    pca_components=pca_components,
     report=_report,
 )

@@ -9,6 +9,7 @@ import dataclasses
 from vpr_jax.encoders import lda
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, PCAFit, Report, TrainingSet
+from vpr_jax.methods.pca import shared
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,11 +41,19 @@ def encode(state: lda.LDAState, images):
 
 
 def check(settings: Settings, training: TrainingSet, log) -> Settings:
+    """With fewer components than asked, lda whitens in all (a note); the shared fit must
+    hold what it whitens in."""
     limit = training.pca_limit
     if settings.n_components > limit:
         log(
             f"note: lda.n_components={settings.n_components} exceeds the {limit} principal "
             f"components of {training.n_images} training images: lda whitens in all {limit}"
+        )
+    need = min(settings.n_components, limit)
+    if need > training.pca_components:
+        raise UserError(
+            f"method lda needs {need} components of the pair's PCA fit, which holds "
+            f"{training.pca_components}: set {shared.fix}"
         )
     return settings
 
@@ -64,10 +73,8 @@ method = Method(
     fit=fit,
     encode=encode,
     settings=Settings,
-    needs_alignment=True,
-    uses=("pca_fit",),
+    needs=("aligned", "pca_fit"),
     random=False,
     check=check,
-    pca_components=lambda s, training: s.n_components,
     report=_report,
 )

@@ -1,13 +1,14 @@
 """pca: PCA change removal (Lowry & Milford): the first k principal components of both
 seasons' training images removed, for every k of ``removed_pcs`` from one fit.
 
-Its fit is the pair's shared PCA fit (``shared_fit``), which every method that ``uses``
-``pca_fit`` receives too (ica whitens with it, lda whitens inside it, a residual-input
-auto-encoder removes its leading components). The shared fit solves every component
-exactly (``covariance`` or ``gram``), or, where that is too large (``FULL_SOLVE_LIMIT``) or
-``pca.solver=subspace`` asks, a fixed ``pca.subspace_components``; every user gets that
-whole fit and takes the leading components it needs, so no method's numbers depend on which
-others share the sweep.
+Its fit is the pair's shared PCA fit (``shared``, named in ``method_table.OFFERS``), which
+every method that ``needs`` ``pca_fit`` receives too (ica whitens with it, lda whitens
+inside it, a residual-input auto-encoder removes its leading components). The shared fit
+solves every component exactly (``covariance`` or ``gram``), or, where that is too large
+(``FULL_SOLVE_LIMIT``) or ``pca.solver=subspace`` asks, a fixed ``pca.subspace_components``;
+every user gets that whole fit and takes the leading components it needs, so no method's
+numbers depend on which others share the sweep. With a list for a ``pca.*`` setting, pca's
+cells get a shared fit per value; the methods that need it, the first value's.
 
 The descriptor of count k is the suffix ``[k:]`` of ``pca.suffix_descriptors`` (the
 coefficients on every component of the fit, then the residual; ``vpr_jax.encoders.pca``),
@@ -25,7 +26,16 @@ from jaxtyping import Array, Float
 
 from vpr_jax.encoders import pca
 from vpr_jax.errors import UserError
-from vpr_jax.methods.contract import Method, NotScored, PCAFit, Report, SharedFit
+from vpr_jax.methods.contract import (
+    SERVED,
+    SUFFIX,
+    Method,
+    NotScored,
+    PCAFit,
+    Report,
+    SharedFit,
+    TrainingSet,
+)
 
 OUTPUTS = ("coefficients", "pixels")
 
@@ -37,6 +47,7 @@ class Settings:
     solver: str = "auto"  # auto | covariance | gram | subspace (vpr_jax.encoders.pca)
     output: str = "coefficients"  # coefficients | pixels (the seed's back-projection)
     subspace_components: int = 512  # what the subspace solver fits, whichever methods use it
+    removed_pcs: int = 0  # leading components removed (the sweep's removed_pcs: one fit)
 
     def __post_init__(self):
         if self.subspace_components < 1:
@@ -119,21 +130,49 @@ def _report(state, settings: dict) -> Report:
     return Report(basis=components[:k] if k else None, basis_name="removed_components")
 
 
+def removed_count_fits(who: str, k: int, limit: int, why: str, training: TrainingSet, log) -> bool:
+    """Whether ``who``'s removed count is below ``limit`` (``why`` says what sets it): a
+    count the command line names is refused beyond it, a default or a preset's is left out
+    with a note."""
+    if k < limit:
+        return True
+    if "removed_pcs" in training.given:
+        raise UserError(
+            f"removed_pcs={list(training.swept.get('removed_pcs', (k,)))} leaves no "
+            f"component: {why}, so use counts below {limit}"
+        )
+    log(f"note: {who} removed_pcs={k} left out: {why} (set removed_pcs to choose)")
+    return False
+
+
+def check(settings: Settings, training: TrainingSet, log) -> Settings | None:
+    """Counts the training images serve, and no more than the shared fit holds."""
+    k, limit = settings.removed_pcs, training.pca_limit
+    why = f"PCA of {training.n_images} training images has {limit} components"
+    if not removed_count_fits("pca", k, limit, why, training, log):
+        return None
+    held = shared_components(settings, training.n_images, training.n_pixels)
+    if max(1, k) > held:
+        raise UserError(
+            f"method pca needs {k} components of the pair's PCA fit, which holds {held}: "
+            f"set {shared.fix}"
+        )
+    return settings
+
+
+shared = SharedFit(
+    components=shared_components,
+    fit=shared_fit,
+    fix="pca.solver=covariance (every component), or a larger pca.subspace_components",
+)
 method = Method(
     fit=fit,
     encode=encode,
     settings=Settings,
-    sweeps=("removed_pcs",),
-    serves=("removed_pcs",),  # one fit, a suffix per count
-    suffix=lambda s: "" if s.output == "pixels" else "removed_pcs",
-    uses=("pca_fit",),
+    # one fit serves every removed count; in coefficients, one encoding too (a suffix each)
+    axes=lambda s: {"removed_pcs": SERVED if s.output == "pixels" else SUFFIX},
+    needs=("pca_fit",),
     random=False,
-    # the components it removes; the fit itself also for k = 0 (the image less its mean)
-    pca_components=lambda s, training: max(1, *training.removed_pcs),
+    check=check,
     report=_report,
-    shared_fit=SharedFit(
-        components=shared_components,
-        fit=shared_fit,
-        fix="pca.solver=covariance (every component), or a larger pca.subspace_components",
-    ),
 )

@@ -52,7 +52,7 @@ def precomputed_descriptors(
         method=name,
         objective="",
         seed=seed,
-        parts=(Part(setting="", removed_pcs=0, run=name),),
+        parts=(Part(settings={}, setting="", run=name),),
         starts=(0,),
         db=db,
         query=query,

@@ -44,7 +44,7 @@ EXTENDABLE_KEYS = (
 AXIS_KEYS = {"sequence": ("enabled", "ds")}
 # The layout of a logdir (config.yaml, results.csv's columns, the runs' files): written as
 # config.yaml's ``format``; a logdir of another format is refused, never read or extended.
-FORMAT = 2
+FORMAT = 3  # 3: results.csv's settings column, cells named by their runs (2026-12-05)
 
 
 ENCODERS_CSV = "encoders.csv"  # logdir/encoders.csv: every saved encoder and its folder
@@ -53,7 +53,7 @@ LISTING = (
     "method",
     "objective",
     "setting",
-    "removed_pcs",
+    "cell",  # every swept setting of the chosen cell: removed_pcs=20, n_components=64 ...
     "seed",
     "val_recall_at_1",
     "selected",

@@ -23,7 +23,7 @@ from vpr_jax.outputs.results import (  # noqa: E402
     ResultRow,
     best_objectives,
     selected_rows,
-    sweeps_removed_pcs,
+    sweep_labels,
 )
 
 
@@ -32,7 +32,7 @@ def _label(rows: list[ResultRow], best: set[str] = frozenset()) -> str:
     number of seeds where there are several; "best" on the objective a method's validation
     recall prefers (``best_objectives``)."""
     row = rows[0]
-    k = f" (k={row.removed_pcs})" if sweeps_removed_pcs(row) else ""
+    k = "".join(f" ({text})" for text in sweep_labels(row))
     seeds = f", {len(rows)} seeds" if len(rows) > 1 else ""
     return label_of(row) + k + seeds + (" best" if row.run in best else "")
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import re
 from pathlib import Path
@@ -21,7 +22,8 @@ import numpy as np
 
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
-from vpr_jax.method_table import BASELINE
+from vpr_jax.method_table import model_label
+from vpr_jax.methods.settings import label
 
 # The columns of results.csv, in order, with their types: one row per finished cell.
 ResultRow = NamedTuple(
@@ -33,7 +35,8 @@ ResultRow = NamedTuple(
         ("method", str),
         ("objective", str),  # the auto-encoders' training objective; empty for other methods
         ("setting", str),  # the method's swept settings, e.g. n_components=64; empty: none
-        ("removed_pcs", int),  # 0 for methods without the removed-PC axis
+        ("settings", str),  # every swept setting of the cell, JSON: {"removed_pcs": 5}
+        ("removed_pcs", int),  # the sweep's removed_pcs: 0 for a method without the setting
         ("ds", int),  # sequence length; 1 = single images
         ("n_train", int),  # images the encoder was fitted on, both seasons
         ("n_test", int),  # queries
@@ -65,20 +68,49 @@ COLUMN_TYPES: dict[str, type] = ResultRow.__annotations__
 TIMING_NAMES = ("fit_seconds", "encode_ms_per_image")
 
 
-class CellKey(NamedTuple):
-    """What identifies a cell: a resumed sweep skips the cells whose key is in the table."""
-
-    season_pair: str
-    method: str
-    objective: str  # "" for methods without the objective axis
-    setting: str  # "" for a method without swept settings
-    removed_pcs: int  # 0 for methods without the removed-PC axis
-    ds: int  # sequence length; 1 = single images
-    seed: int
+# The sweep's own keys a method takes as a setting of the same name (``removed_pcs``
+# reaches pca, ica and diff_pca), each with a results.csv column and how a value ends the
+# names of the method's runs and folders (``pca_k005``).
+SWEEP_KEYS = {"removed_pcs": "_k{:03d}"}
 
 
-def cell_key(row: ResultRow) -> CellKey:
-    return CellKey(**{f: getattr(row, f) for f in CellKey._fields})
+def cell_name(method: str, objective: str, swept, seed: int | None = None) -> str:
+    """A run's or a fitted state's name from its swept settings ((name, value) pairs in
+    the method's order): their label, then the sweep's keys as their suffixes
+    (``ica_n_components=64_seed1_k005``)."""
+    plain = tuple((n, v) for n, v in swept if n not in SWEEP_KEYS)
+    suffix = "".join(SWEEP_KEYS[n].format(v) for n, v in swept if n in SWEEP_KEYS)
+    return model_label(method, objective, label(plain), seed) + suffix
+
+
+def sweep_columns(settings: dict) -> dict[str, int]:
+    """A cell's results.csv columns of the sweep's keys (0 for a method without one)."""
+    return {key: int(settings.get(key, 0)) for key in SWEEP_KEYS}
+
+
+def settings_of(row: ResultRow) -> dict:
+    """A row's swept settings (its ``settings`` column)."""
+    return json.loads(row.settings) if row.settings else {}
+
+
+SWEEP_LABELS = {"removed_pcs": "k={}"}  # how a cell's line in the run log names each
+
+
+def sweep_labels(row: ResultRow) -> list[str]:
+    """The sweep's keys the row's cell has, as the run log and results.md name them (k=5)."""
+    values = settings_of(row)
+    return [SWEEP_LABELS[k].format(values[k]) for k in SWEEP_KEYS if k in values]
+
+
+def has_setting(row: ResultRow, name: str) -> bool:
+    """Whether the row's cell sweeps ``name`` (pca's removed_pcs; fae's learning_rate)."""
+    return name in settings_of(row)
+
+
+def cell_key(row: ResultRow) -> str:
+    """What identifies a cell: its run (the pair, the method, its settings, seed and ds);
+    a resumed sweep skips the cells whose run is in the table."""
+    return row.run
 
 
 def _parse(row: dict) -> ResultRow:
@@ -133,9 +165,10 @@ def natural_order(text: str) -> tuple:
 
 
 def choice_order(row: ResultRow) -> tuple:
-    """The order ties are decided in: settings in natural order, then the fewest removed
-    PCs, then the seed."""
-    return (natural_order(row.setting), row.removed_pcs, row.seed)
+    """The order ties are decided in: settings in natural order, then the smallest values
+    of the sweep's keys (the fewest removed PCs), then the seed."""
+    values = settings_of(row)
+    return (natural_order(row.setting), tuple(values.get(k, 0) for k in SWEEP_KEYS), row.seed)
 
 
 class Choice(NamedTuple):
@@ -182,9 +215,7 @@ def choices(rows: list[ResultRow]) -> dict[GroupKey, list[Choice]]:
     """Each group's choices in ``choice_order``, each with its rows in seed order."""
     by_group: dict[GroupKey, dict[tuple, list[ResultRow]]] = {}
     for row in sorted(rows, key=choice_order):
-        by_group.setdefault(group_key(row), {}).setdefault(
-            (row.setting, row.removed_pcs), []
-        ).append(row)
+        by_group.setdefault(group_key(row), {}).setdefault(row.settings, []).append(row)
     return {g: [Choice(tuple(c)) for c in cs.values()] for g, cs in by_group.items()}
 
 
@@ -239,12 +270,14 @@ def best_objectives(rows: list[ResultRow]) -> set[str]:
     }
 
 
-def baseline_method(rows: list[ResultRow], outside: tuple[str, ...] = ()) -> str | None:
-    """What results.md's paired differences are to: ``method_table.BASELINE`` (the seed's
-    PCA) when the sweep ran it, else the first set of outside descriptors (``outside``, in
-    the order given) that has rows, else None (no differences)."""
+def baseline_method(
+    rows: list[ResultRow], baseline: str, outside: tuple[str, ...] = ()
+) -> str | None:
+    """What results.md's paired differences are to: the sweep's ``baseline`` (the seed's
+    PCA by default) when the sweep ran it, else the first set of outside descriptors
+    (``outside``, in the order given) that has rows, else None (no differences)."""
     methods = {r.method for r in rows}
-    return next((m for m in (BASELINE, *outside) if m in methods), None)
+    return next((m for m in (baseline, *outside) if m in methods), None)
 
 
 def baseline_of(row: ResultRow, selected: list[ResultRow], baseline: str) -> ResultRow | None:
@@ -257,10 +290,3 @@ def baseline_of(row: ResultRow, selected: list[ResultRow], baseline: str) -> Res
     ]
     same_seed = [other for other in mine if other.seed == row.seed]
     return (same_seed or mine or [None])[0]
-
-
-def sweeps_removed_pcs(row: ResultRow) -> bool:
-    """Whether the row's method has the removed-PC axis: its run's name carries the count
-    (``summer-fall/pca_k005``, ``..._k005_ds10``; ``experiments.cells.run_name``)."""
-    ds = f"_ds{row.ds:02d}" if row.ds != 1 else ""
-    return row.run.endswith(f"_k{row.removed_pcs:03d}{ds}")

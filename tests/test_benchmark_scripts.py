@@ -1,0 +1,161 @@
+"""Every script in benchmarks/ runs: each is started as a user starts it, with ``--tiny`` (a
+seconds-long run on data too small for its figures to mean anything), and must finish with
+exit code 0 and print the lines only a finished measurement prints (its ratios, its table).
+An API change that breaks a benchmark then fails here instead of waiting for the next person
+who runs it. (halves.py is tested in test_benchmarks.py.)"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+
+from tests.conftest import REPO, env_with_repo, run_process
+from tests.inputs import write_folders
+
+BENCHMARKS = REPO / "benchmarks"
+RATIO = r"ratio\s+\d+\.\d+x"  # common.ratio_row's ratio column
+
+
+def run_script(name: str, *args: str):
+    """``python benchmarks/NAME ARGS`` in a fresh interpreter, in the repository; asserts
+    it succeeded and returns its stdout."""
+    proc = run_process([sys.executable, str(BENCHMARKS / name), *args], env=env_with_repo())
+    assert proc.returncode == 0, (proc.stdout[-3000:], proc.stderr[-3000:])
+    return proc.stdout
+
+
+def line_matching(out: str, pattern: str) -> str:
+    """The first line of ``out`` that ``pattern`` matches (searched in each line)."""
+    for line in out.splitlines():
+        if re.search(pattern, line):
+            return line
+    raise AssertionError(f"no line matches {pattern!r} in:\n{out[-3000:]}")
+
+
+def test_run_all():
+    """Every row but the scaling exponents: those are scaling.py's ``measure`` at the same
+    tiny lengths (test_scaling), four more fresh processes this test leaves out."""
+    out = run_script("run_all.py", "--tiny", "--skip-scaling")
+    header = line_matching(out, r"^what\s+ours\s+peer, same run\s+ratio\s+goal\s+met$")
+    table = out[out.index(header) :]
+    for row in (
+        "PCA fit, every component, 300 x 256",
+        "FastICA, 8 components",
+        "matching, top-10 of 100 x 100",
+        "sequence matching ds=10, 100 x 100",
+        "encode ICA (8)",
+        "encode CAE calc (64,128) c8",
+        "paper protocol, tiny",
+    ):
+        line_matching(table, "^" + re.escape(row) + r"\s.*\d+\.\d{3}x\s+<= [\d.]+x\s+(yes|no)")
+    assert "whole route (preset=full) peak RSS: left out with --tiny" in out
+    # pca at two removed-PC counts and the FAE
+    line_matching(out, r"^  3 cells, peak RSS \d+\.\d+ GiB; training seconds \{'fae': \d")
+    line_matching(out, r"^total \d+ s$")
+
+
+def test_bench_linear():
+    out = run_script("bench_linear.py", "--tiny")
+    assert "train (300, 256), queries 100 x database 100" in out
+    for row in (
+        "PCA fit ",
+        "PCA fit, 100 components",
+        "removed-PC sweep, 6 counts",
+        "the same with the PCA fit",
+        "matching, top-10 cosine",
+        "metrics, 100 top-10 lists of 2000",
+    ):
+        line_matching(out, re.escape(row) + ".*" + RATIO)
+    line_matching(out, r"PCA encode \(100 \+ residual\)\s+\d+\.\d+ ms per image")
+
+
+def test_bench_ica():
+    out = run_script("bench_ica.py", "--tiny")
+    line_matching(out, r"images, 8 ICs\s+ours \(JAX\)\s+\d+\.\d+\s+\d+")
+    line_matching(out, r"sklearn whiten_solver=eigh\s+\d+\.\d+\s+\d+\s+\d+\.\d+x")
+    line_matching(out, r"Known sources mixed into 300 x 256")
+    # the known-source problem's line: speed-up and Amari distance
+    line_matching(out, r"sklearn whiten_solver=svd\s+\d+\.\d+\s+\d+\s+\d+\.\d+x\s+\d+\.\d{4}$")
+
+
+def test_bench_sequence():
+    out = run_script("bench_sequence.py", "--tiny")
+    line_matching(out, r"^100 x 100 ds=10 .*" + RATIO)
+    line_matching(out, r"^100 x 1,000 \(full\) ds=10 .*" + RATIO)
+    line_matching(out, r"best match agrees with numpy for \d+\.\d% of queries")
+
+
+def test_bench_autoencoders():
+    out = run_script("bench_autoencoders.py", "--tiny")
+    assert "Encode 100 database + 100 query images" in out
+    assert "Training: 270 images, batch 16 (16 steps/epoch)" in out
+    for model in ("FAE hidden 256", "CAE fast (24,48) s2d2", "CAE quick (16,32)", "CAE calc"):
+        line_matching(out, "^" + re.escape(model) + r".*\d+\.\d{4}x\s+(yes|NO)$")  # encode
+        line_matching(out, "^" + re.escape(model) + r".*2/16 \(extrapolated\).*\d+\.\d{5}$")
+    line_matching(out, r"^total \d+\.\d s$")
+
+
+def test_peers():
+    """A peer alone, on the tiny data its benchmark builds: one JSON line."""
+    out = run_script("peers.py", "fastica_256", "--tiny", "--repeats", "1")
+    report = json.loads(out.strip().splitlines()[-1])
+    assert report["task"] == "fastica_256"
+    assert report["seconds"] > 0 and report["first"] > 0 and report["blas"]
+
+
+def test_scaling(tmp_path):
+    plot = tmp_path / "scaling.png"
+    out = run_script("scaling.py", "--tiny", "--plot", str(plot))
+    for n, queries in ((200, 20), (400, 40)):
+        line_matching(out, rf"matching n={n} \({queries} queries\): \d+\.\d+ s, working memory")
+        line_matching(out, rf"raw\+pca sweep n={n}: \d+\.\d s, peak RSS \d+\.\d+ GiB")
+    for fit in ("matching time", "matching memory", "sweep time", "sweep peak RSS"):
+        line_matching(out, rf"^{fit} ~ n\^-?\d+\.\d+ ")
+    assert plot.stat().st_size > 0
+
+
+def test_match_exactness(tmp_path):
+    root = write_folders(tmp_path / "data", n=100)
+    out = run_script("match_exactness.py", str(root), "--tiny")
+    for case in ("raw pixels", "PCA, 10 components removed"):
+        line_matching(
+            out,
+            re.escape(case) + r": 100 queries x 100 database, top-10: \d+ of 1,000 rank "
+            r"positions differ, 0 of them not ties; top-1 identical for",
+        )
+
+
+def test_real_data(tmp_path):
+    root = write_folders(tmp_path / "data", n=100)  # --tiny's split takes 94 frames
+    out = run_script(
+        "real_data.py",
+        str(root),
+        "--tiny",
+        "--logdir",
+        str(tmp_path / "runs"),
+        "methods=[raw,pca]",
+        f"train.checkpoint_dir={tmp_path / 'checkpoints'}",
+    )
+    assert "| method | objective | k | recall@1 [95% CI] |" in out
+    number = r"\d\.\d{3}"
+    line_matching(out, rf"^\| raw \|  \|  \| {number} \[{number}, {number}\] \|")
+    # the selected removed-PC count, and the recall@1 of sequences of ten at its own
+    line_matching(
+        out,
+        rf"^\| pca \|  \| [05] \| {number} \[{number}, {number}\] \|.*"
+        rf"\| {number} \(k=[05]\) \| [05]: {number} \|",
+    )
+    assert (tmp_path / "runs" / "results.csv").is_file()
+
+
+def test_every_script_is_tested():
+    """A new script in benchmarks/ gets a test here (common.py is the scripts' helpers;
+    halves.py is tested in test_benchmarks.py)."""
+    tested = {
+        name.removeprefix("test_") + ".py"
+        for name, value in globals().items()
+        if name.startswith("test_") and callable(value)
+    }
+    scripts = {p.name for p in BENCHMARKS.glob("*.py")} - {"common.py", "halves.py"}
+    assert scripts <= tested, sorted(scripts - tested)
