@@ -1,6 +1,6 @@
 """Exporting a sweep's cells (``experiments.export``): the sweep's pairs read again, each
-chosen cell's descriptors from its saved encoder (or the outside files), matched again to
-the top-K, and written as one folder (``vpr_jax.outputs.export``)."""
+chosen cell's descriptors from its saved encoder (a set of outside descriptors' too),
+matched again to the top-K, and written as one folder (``vpr_jax.outputs.export``)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,8 @@ from experiments.cells import INCOMPLETE, match, run_name
 from experiments.encoders import read_listing
 from experiments.plan import Plan, make_plan
 from experiments.run import load_pair
-from vpr_jax.config import SweepConfig, config_from_dict
+from vpr_jax.command_line import config_from_dict
+from vpr_jax.config import SweepConfig
 from vpr_jax.data.pair import PairData
 from vpr_jax.encoders.saved import FIT_JSON, suite_version
 from vpr_jax.errors import UserError
@@ -114,11 +115,9 @@ def export(logdir: Path, out: Path, *, top_k: int, all_settings: bool, log: Log)
 def cell_descriptors(
     plan: Plan, pair: PairData, row: ResultRow, saved: tuple[Path, dict] | None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(database, queries) descriptors of the cell: the outside files' rows, or the saved
-    encoder's output on the sweep's (preprocessed) images, called as the sweep called it."""
-    if row.method in plan.outside:
-        sides = plan.outside[row.method]
-        return sides["database"].of(pair.names.db), sides["queries"].of(pair.names.query)
+    """(database, queries) descriptors of the cell: the saved encoder's output on the
+    sweep's (preprocessed) images, called as the sweep called it (a set of outside
+    descriptors too: its rows)."""
     if saved is None:
         raise UserError(
             f"{row.run}: its saved encoder is missing (logdir's encoders.csv lists none for "
@@ -218,5 +217,5 @@ def _facts(plan: Plan, top_k, pair: PairData, row: ResultRow, folder, recall: fl
         "pairs": f"pairs.txt, scores.csv: top {top_k} per query, best first",
         "encoder": "this folder: vpr_jax.load_encoder(folder) -> (encode_fn, params)"
         if folder is not None
-        else "none: outside descriptors (precomputed), or its saved folder was missing",
+        else "none: its saved folder was missing",
     }

@@ -25,9 +25,8 @@ from jax.sharding import Mesh
 from experiments.plan import Plan
 from experiments.resolve import Fit, Served
 from experiments.resolve import needs as resolve_needs
+from experiments.saving import save_state
 from vpr_jax.data.pair import PairData
-from vpr_jax.data.preprocess import describe_preprocessing
-from vpr_jax.encoders.saved import save_fitted, suite_version
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.method_table import MethodInfo
 from vpr_jax.methods.contract import (
@@ -50,10 +49,10 @@ from vpr_jax.methods.descriptors import (
     encode_validation,
     timed,
 )
+from vpr_jax.methods.precomputed import Outside
 from vpr_jax.methods.settings import as_dict
 from vpr_jax.outputs.tb import TrainingRun
 from vpr_jax.progress import Log
-from vpr_jax.sharding import to_host
 
 
 class PairRun(NamedTuple):
@@ -121,6 +120,8 @@ def resources(fit: Fit, run: PairRun) -> dict[str, Any]:
         out["training"] = _training(fit, run)
     if "mesh" in needs:
         out["mesh"] = run.mesh
+    if "outside" in needs:
+        out["outside"] = Outside(sides=run.plan.outside[fit.method.name], pair=data)
     return out
 
 
@@ -210,37 +211,6 @@ def run_fit(fit: Fit, run: PairRun) -> tuple[Any, float, float]:
     return state, seconds, shared.seconds if shared is not None else 0.0
 
 
-def save_state(fit: Fit, state: Any, run: PairRun) -> None:
-    """Keep what the method fitted, so ``vpr_jax.load_encoder`` gives it back (process 0;
-    the pair's ``encoder.json`` follows with the report)."""
-    state = jax.tree.map(to_host, state)  # on every process: it may gather
-    if jax.process_index() != 0:
-        return
-    cfg, info = run.plan.cfg, fit.method.info
-    serves: dict[str, list] = {}
-    for served in fit.served:
-        for name, value in served.values.items():
-            serves.setdefault(name, []).append(value)
-    description = {
-        "method": info.method,
-        "name": info.name,
-        "objective": fit.objective,
-        "pair": run.data.name,
-        "settings": dict(fit.values),
-        "serves": serves,
-        "cells": [
-            {"run": p.run, "setting": p.setting, "settings": p.settings, "served": p.values}
-            for p in fit.served
-        ],
-        "seed": fit.seed,
-        "preprocessing": describe_preprocessing(
-            cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded
-        ),
-        "suite_version": suite_version(),
-    }
-    save_fitted(run.fitted_dir / fit.folder, state, description)
-
-
 def _left_out(fit: Fit, parts, err: NotScored, run: PairRun) -> None:
     """One note for cells this pair's training set cannot serve (``NotScored``)."""
     runs = ", ".join(p.run for p in parts)
@@ -269,7 +239,7 @@ def describe_fit(fit: Fit, parts: tuple[Served, ...], run: PairRun) -> Iterator[
     except NotScored as err:
         _left_out(fit, parts, err, run)
         return
-    save_state(fit, state, run)
+    save_state(fit, state, run.plan.cfg, run.data.name, run.fitted_dir)
     parts, reports = _scored_parts(fit, parts, state, run)
     if not parts:
         return
@@ -294,7 +264,7 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
     first: Report = reports[0]
     db, query, ms = encode_pair(encode, data)
     warning = "; ".join(w for w in (first.warning, degenerate_warning(db, query)) if w) or None
-    val_db, val_query = encode_validation(encode, data)
+    val_db, val_query = encode_validation(encode, data) if first.validation else (None, None)
     shape, (own, shared) = data.train.shape[1:], seconds
     return Descriptors(
         method=fit.method.name,

@@ -117,16 +117,22 @@ def resolve_pairs(spec: str, seasons: tuple[str, ...]) -> list[tuple[str, str]]:
     return pairs
 
 
-def read_outside_sets(cfg: SweepConfig, bench: Benchmark) -> dict[str, dict[str, OutsideSide]]:
+def read_outside_sets(
+    cfg: SweepConfig, bench: Benchmark, log: Log
+) -> dict[str, dict[str, OutsideSide]]:
     """Every set of outside descriptors (``precomputed.*``), read once in the benchmark's
-    order: a file that cannot serve its images is one line now, before any method runs."""
-    from vpr_jax.methods.precomputed import checked_sides  # JAX: only for outside sets
+    order: a file that cannot serve its images is one line now, before any method runs; a
+    warning names the images whose descriptor is zero."""
+    from vpr_jax.methods.precomputed import checked_sides, zero_warning  # JAX: only for sets
 
-    sides = {"database": bench.db_names, "queries": bench.query_names}
-    return {
-        name: checked_sides(name, files, read_precomputed(files, name, sides, cfg.data.root))
-        for name, files in cfg.precomputed.items()
-    }
+    names = {"database": bench.db_names, "queries": bench.query_names}
+    out = {}
+    for name, files in cfg.precomputed.items():
+        out[name] = checked_sides(name, files, read_precomputed(files, name, names, cfg.data.root))
+        warning = zero_warning(out[name], names)
+        if warning:
+            log(f"warning: precomputed set {name}: {warning}")
+    return out
 
 
 def make_plan(
@@ -179,7 +185,7 @@ def make_plan(
         benchmark=data.benchmark,
         methods=methods,
         fits=tuple(f for r in methods for f in resolve.fits(r, cfg)),
-        outside=read_outside_sets(cfg, data.benchmark) if data.benchmark is not None else {},
+        outside=read_outside_sets(cfg, data.benchmark, log) if data.benchmark is not None else {},
         training_sets=sets,
         shared=shared,
         identity=identity(cfg),
@@ -315,6 +321,8 @@ def _with_effective_settings(cfg: SweepConfig, methods) -> SweepConfig:
     for r in methods:
         given = resolve.given_settings(cfg, r.info, r.method)
         settings = plain(effective(r.method.settings, list(r.combinations), given))
+        if r.info.precomputed:
+            continue  # cfg.precomputed holds a set's files as given
         if r.info.plugin:
             plugins[r.name] = settings
         else:

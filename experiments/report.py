@@ -4,9 +4,7 @@ run's cells and every earlier one's), so a resumed sweep reports the whole table
 
 from __future__ import annotations
 
-import csv
 import functools
-import io
 import math
 import shutil
 import traceback
@@ -15,17 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.cells import INCOMPLETE, block_length, run_name
+from experiments.cells import INCOMPLETE, block_length
 from vpr_jax.config import SweepConfig
-from vpr_jax.encoders.saved import FIT_JSON, describe_encoder, read_description
 from vpr_jax.errors import first_line
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
 from vpr_jax.evaluation.metrics import SCALAR_NAMES, pr_curve
 from vpr_jax.files import atomic_write_text, replace_folder
 from vpr_jax.method_table import NAMES as METHOD_NAMES
-from vpr_jax.method_table import model_name
-from vpr_jax.methods.settings import label as settings_label
-from vpr_jax.outputs.logdir import ENCODERS_CSV, LISTING, fitted_root
 from vpr_jax.outputs.palette import compare_labels, label_of
 from vpr_jax.outputs.plots import (
     by_label,
@@ -74,9 +68,6 @@ def report_steps(logdir: Path, cfg: SweepConfig, rows: list[ResultRow]) -> dict[
         "results.md": lambda: atomic_write_text(
             logdir / "results.md", markdown_table(rows, *differences_to_baseline(rows, curve, cfg))
         ),
-        ENCODERS_CSV: lambda: atomic_write_text(
-            logdir / ENCODERS_CSV, encoders_csv(describe_encoders(fitted_root(cfg, logdir), rows))
-        ),
         f"the {SUMMARY} runs": lambda: write_tb_summaries(logdir, rows, curve, cfg),
         f"the {COMPARE} runs": lambda: write_tb_compare(logdir, rows, curve, cfg),
         "figures/pr_curves.png": figure(
@@ -97,15 +88,18 @@ def report_steps(logdir: Path, cfg: SweepConfig, rows: list[ResultRow]) -> dict[
 
 
 def write_report(logdir: Path, cfg: SweepConfig, log: RunLog) -> list[str]:
-    """results.md, encoders.csv, the summary and compare runs and the figures, from every
-    row of results.csv. A step that fails is skipped with one warning naming it (its
-    traceback in sweep.log): the cells are fine, the other outputs are written, and the
-    next run of the same command tries it again. Returns the names of the failed steps."""
+    """results.md, the summary and compare runs and the figures, from every row of
+    results.csv (``run_steps``). Returns the names of the failed steps."""
     rows = read_results(logdir / "results.csv")
-    if not rows:
-        return []
+    return run_steps(report_steps(logdir, cfg, rows), log) if rows else []
+
+
+def run_steps(steps: dict[str, Callable], log: RunLog) -> list[str]:
+    """Run each step; one that fails is skipped with one warning naming it (its traceback
+    in sweep.log): the cells are fine, the other outputs are written, and the next run of
+    the same command tries it again. Returns the names of the failed steps."""
     failed = []
-    for name, step in report_steps(logdir, cfg, rows).items():
+    for name, step in steps.items():
         try:
             step()
         except Exception as err:  # a report is never worth the results it reports
@@ -117,66 +111,6 @@ def write_report(logdir: Path, cfg: SweepConfig, log: RunLog) -> list[str]:
             )
             log.record(traceback.format_exc())
     return failed
-
-
-def encoders_csv(listing: list[dict]) -> str:
-    out = io.StringIO()
-    writer = csv.DictWriter(out, LISTING, extrasaction="ignore", lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(listing)
-    return out.getvalue()
-
-
-def describe_encoders(root: Path, rows: list[ResultRow]) -> list[dict]:
-    """Each saved encoder's ``encoder.json``, from its ``fit.json`` and the table: among the
-    cells it serves (pca's removed counts), the one chosen on the validation places (single
-    images), with its validation and test recall@1. Rewritten with every report, so a
-    resumed sweep that adds counts moves the choice. Returns the descriptions, each with its
-    folder."""
-    shortest, listing = min(r.ds for r in rows), []
-    by_run = {r.run: r for r in rows if r.ds == shortest}
-    if not root.is_dir():
-        return listing
-    for pair in sorted({r.season_pair for r in rows}):
-        for fit_file in sorted((root / pair).glob(f"*/{FIT_JSON}")):
-            fit = read_description(fit_file.parent, FIT_JSON)
-            mine = [
-                (cell, by_run[run_name(pair, cell["run"], shortest)])
-                for cell in fit.get("cells", [])
-                if run_name(pair, cell["run"], shortest) in by_run
-            ]
-            if not mine:
-                continue
-            cell, chosen = max(
-                mine, key=lambda t: (t[1].selected, t[1].val_recall_at_1, t[1].val_margin)
-            )
-            description = describe_encoder(
-                fit_file.parent,
-                {
-                    "model": model_name(fit["name"], fit["objective"]),
-                    "chosen": cell["served"],
-                    "setting": chosen.setting,
-                    "swept": settings_of(chosen),
-                    "cell": settings_label(tuple(settings_of(chosen).items())),
-                    "val_recall_at_1": chosen.val_recall_at_1,
-                    "val_recall_at_1_by_served": {
-                        settings_label(tuple(c["served"].items())): r.val_recall_at_1
-                        for c, r in mine
-                    },
-                    "test_recall_at_1": chosen.recall_at_1,
-                    "selected": bool(chosen.selected),
-                    "run": chosen.run,
-                },
-            )
-            listing.append(
-                {
-                    **description,
-                    "method": fit["name"],
-                    "selected": int(chosen.selected),
-                    "folder": str(fit_file.parent),
-                }
-            )
-    return listing
 
 
 def pooled_curve(rows: list[ResultRow], curve: "Curves", pr_convention: str) -> tuple:

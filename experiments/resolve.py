@@ -29,6 +29,7 @@ from vpr_jax.method_table import (
     info_of,
     load_object,
     model_name,
+    outside_info,
 )
 from vpr_jax.methods import settings as axes
 from vpr_jax.methods.contract import (
@@ -87,7 +88,10 @@ class Fit(NamedTuple):
 
 
 def group_of(info: MethodInfo) -> str:
-    """Where a method's settings are given: ``ica.*``, ``plugin.<name>.*``."""
+    """Where a method's settings are given: ``ica.*``, ``plugin.<name>.*``,
+    ``precomputed.<name>.*``."""
+    if info.precomputed:
+        return f"precomputed.{info.name}"
     return f"plugin.{info.name}" if info.plugin else info.name
 
 
@@ -102,6 +106,8 @@ def _fields(method: Method) -> set[str]:
 def given_settings(cfg: SweepConfig, info: MethodInfo, method: Method | None = None) -> dict:
     """A method's settings as the command line and the preset gave them, with the sweep's
     keys and the training defaults it has a setting of."""
+    if info.precomputed:
+        return dict(cfg.precomputed[info.name])
     given = dict(cfg.plugin.get(info.name, {}) if info.plugin else getattr(cfg, info.name))
     fields = _fields(method) if method is not None else set()
     for key in SWEEP_KEYS:
@@ -160,8 +166,10 @@ def resolve_methods(
     aligned training places is refused on data without them when asked for by name (and
     always when it is the user's), and left out otherwise."""
     resolved, left_out = [], []
-    for entry in cfg.methods:
-        one = resolve(info_of(entry), cfg)
+    infos = [info_of(entry) for entry in cfg.methods]
+    infos += [outside_info(name) for name in cfg.precomputed]  # after the methods, by name
+    for info in infos:
+        one = resolve(info, cfg)
         if needs_alignment(one.method, one.combinations[0].settings) and not aligned:
             left_out.append(one)
             continue
@@ -172,7 +180,7 @@ def resolve_methods(
             f"methods {refused} learn from aligned training places (needs 'aligned'), which "
             f"data.source={source} does not have: {ALIGNED_FIX}"
         )
-    if not resolved and not cfg.precomputed:
+    if not resolved:
         raise UserError(
             f"methods={list(cfg.methods)} all learn from aligned training places, which "
             f"data.source={source} does not have: {ALIGNED_FIX}"

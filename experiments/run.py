@@ -21,8 +21,9 @@ from jax.sharding import Mesh
 from experiments.cells import INCOMPLETE, log_cell, match, run_name, save_cell, validation_scores
 from experiments.fitting import PairRun, describe_fit
 from experiments.plan import Plan
-from experiments.report import COMPARE, SUMMARY, write_report
+from experiments.report import COMPARE, SUMMARY, run_steps, write_report
 from experiments.resolve import Fit, Served
+from experiments.saving import describe_saved
 from vpr_jax.data.pair import PairData, benchmark_pair, pair_data
 from vpr_jax.errors import UserError
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
@@ -30,8 +31,7 @@ from vpr_jax.evaluation.protocol import describe_protocol, fingerprint, protocol
 from vpr_jax.files import atomic_write_text
 from vpr_jax.host_arrays import release_free_memory
 from vpr_jax.methods.descriptors import Descriptors
-from vpr_jax.methods.precomputed import precomputed_descriptors
-from vpr_jax.outputs.logdir import config_yaml, fitted_root, lock_logdir
+from vpr_jax.outputs.logdir import ENCODERS_CSV, config_yaml, fitted_root, lock_logdir
 from vpr_jax.outputs.results import (
     SWEEP_KEYS,
     TIMING_NAMES,
@@ -92,11 +92,6 @@ def all_cells(plan: Plan) -> list[Cell]:
                 for part in fit.served
                 for ds in cfg.sequence_lengths
             ]
-        out += [
-            outside_cell(f"{a}-{b}", name, ds, cfg.seed)
-            for name in plan.outside
-            for ds in cfg.sequence_lengths
-        ]
     return out
 
 
@@ -111,20 +106,6 @@ def cell_of(pair: str, fit: Fit, part: Served, ds: int) -> Cell:
         settings=part.settings,
         ds=ds,
         seed=fit.seed,
-    )
-
-
-def outside_cell(pair: str, name: str, ds: int, seed: int) -> Cell:
-    """The cell of a set of outside descriptors: no objective or settings."""
-    return Cell(
-        run=run_name(pair, name, ds),
-        season_pair=pair,
-        method=name,
-        objective="",
-        setting="",
-        settings={},
-        ds=ds,
-        seed=seed,
     )
 
 
@@ -172,6 +153,7 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
                 bar.advance()
                 log_cell(log, f"[{finished}/{len(cells)}]", row, warning, cfg.seed)
     failed = write_report(out, cfg, log)
+    failed += run_steps({ENCODERS_CSV: lambda: describe_saved(out, cfg)}, log)
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)  # empty once every cell moved out
     log(
         ("done, but not written: " + ", ".join(failed) + "; " if failed else "done: ")
@@ -192,7 +174,7 @@ def _run_pair(
     out: Path,
     mesh: Mesh | None,
 ) -> Iterator[tuple[ResultRow, str | None]]:
-    """Every fit of one pair with cells still to do, then every set of outside descriptors:
+    """Every fit of one pair with cells still to do (the sets of outside descriptors last):
     its cells saved as they end (yielded with the descriptors' warning)."""
     cfg, pair = plan.cfg, f"{db}-{query}"
     run = None
@@ -226,11 +208,6 @@ def _run_pair(
                 # encoding, so two methods' descriptors are never held at once.
                 del desc
                 release_free_memory()
-    for name, sides in plan.outside.items():
-        if any(run_name(pair, name, ds) in todo for ds in cfg.sequence_lengths):
-            data = pair_run().data
-            desc = precomputed_descriptors(name, sides, data, cfg.seed)
-            yield from _save_descriptors(out, cfg, data, desc, todo, mesh)
 
 
 def load_pair(plan: Plan, db: str, query: str) -> PairData:

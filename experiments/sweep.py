@@ -21,7 +21,8 @@ from pathlib import Path
 
 # Only light modules here (no JAX): bad input is answered before JAX, Flax and orbax load.
 from experiments.plan import make_plan
-from vpr_jax.config import SweepConfig, given_keys, parse_config
+from vpr_jax.command_line import given_keys, parse_config
+from vpr_jax.config import SweepConfig
 from vpr_jax.errors import UserError
 from vpr_jax.outputs.results import read_results
 from vpr_jax.progress import RunLog

@@ -14,7 +14,7 @@ import sys
 import jax
 
 from experiments.sweep import run_sweep
-from vpr_jax.config import parse_config
+from vpr_jax.command_line import parse_config
 
 PREFIX, SEP = "Compiling ", " with global shapes and types "
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import vpr_jax
-from vpr_jax.config import parse_config
+from vpr_jax.command_line import parse_config
 from vpr_jax.data import load_data
 from vpr_jax.data.pair import pair_data
 from vpr_jax.data.splits import make_split

@@ -93,6 +93,17 @@ def test_no_stage_imports_a_later_stage_and_the_foundation_imports_none():
     assert not reaching, f"the foundation imports a stage: {reaching}"
 
 
+def test_the_encoders_load_no_method():
+    """encoders/ is the math and its files; which method a saved folder is, and loading its
+    object, belong to methods/ (``vpr_jax.methods.loading``)."""
+    found = [
+        str(p.relative_to(REPO))
+        for p in REPO.glob("vpr_jax/encoders/*.py")
+        if "load_object" in p.read_text() or "method_table" in p.read_text()
+    ]
+    assert not found, f"encoders/ loading methods: {found}"
+
+
 def test_methods_make_descriptors_and_never_match():
     modules = _modules()
     graph = import_graph()

@@ -124,7 +124,7 @@ def test_augment_auto_is_the_axis_of_both_values_and_training_settings_default_t
     trained method (a fit per value, the runner's rule chooses); a training setting the
     method is not given takes ``train.*``'s value, one it is given wins."""
     from experiments.resolve import resolve
-    from vpr_jax.config import parse_config
+    from vpr_jax.command_line import parse_config
     from vpr_jax.method_table import METHODS
 
     cfg = parse_config(["train.augment=auto", "train.learning_rate=0.01", "cae.learning_rate=0.1"])

@@ -14,7 +14,8 @@ from omegaconf import OmegaConf
 
 from tests.conftest import SMALL, TINY_ROUTE, assert_one_line_error, run_cli, run_here
 from tests.inputs import write_release, write_video
-from vpr_jax.config import parse_config, to_dict
+from vpr_jax.command_line import parse_config
+from vpr_jax.config import to_dict
 from vpr_jax.outputs.logdir import config_yaml
 
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import method_settings, run_process
-from vpr_jax.config import SplitConfig, parse_config
+from vpr_jax.command_line import parse_config
+from vpr_jax.config import SplitConfig
 from vpr_jax.data.splits import make_split
 from vpr_jax.errors import UserError
 from vpr_jax.outputs.logdir import identity

@@ -12,7 +12,7 @@ import pytest
 
 from tests.conftest import LogLines
 from tests.inputs import frame_image, second_level, source_frame, write_release, write_video
-from vpr_jax.config import parse_config
+from vpr_jax.command_line import parse_config
 from vpr_jax.data import load_data, nordland
 from vpr_jax.data.frames import LIST_DIR, frame_id_from_name, frame_list_path, parse_frame_list
 from vpr_jax.data.nordland import load_nordland, read_folders, read_image_release, read_videos

@@ -14,7 +14,8 @@ from tests.conftest import (
     tail_validation,
 )
 from tests.inputs import frame_image, write_release
-from vpr_jax.config import PRESET_DIR, SplitConfig, TrainConfig, parse_config
+from vpr_jax.command_line import parse_config
+from vpr_jax.config import SplitConfig, TrainConfig
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.data.nordland import read_image_release
 from vpr_jax.data.pair import pair_data
@@ -25,6 +26,7 @@ from vpr_jax.encoders import objectives
 from vpr_jax.encoders.train import TrainingData, TrainOptions, fit_autoencoder
 from vpr_jax.errors import UserError
 from vpr_jax.methods.loading import load_encoder
+from vpr_jax.presets import DIR as PRESET_DIR
 
 
 def _images(n: int, seed: int = 0) -> np.ndarray:

@@ -28,7 +28,7 @@ from tests.conftest import (
     shared_folder,
     shared_sweep,
 )
-from vpr_jax.config import parse_config
+from vpr_jax.command_line import parse_config
 from vpr_jax.errors import UserError
 from vpr_jax.method_table import MethodInfo
 from vpr_jax.outputs.logdir import check_same_config, config_yaml

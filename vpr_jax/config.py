@@ -12,14 +12,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from omegaconf import OmegaConf
-from omegaconf.errors import OmegaConfBaseException
-
-from vpr_jax import method_table
+from vpr_jax import method_table, presets
 from vpr_jax.errors import UserError
 from vpr_jax.shapes import IMAGE_SHAPE, MAX_PIXELS
 
-PRESET_DIR = Path(__file__).resolve().parent.parent / "experiments" / "configs"
 # The names the config accepts, each list written once here and read by the code that acts
 # on it (the Nordland readers, the benchmarks, the optimizers, the PR conventions).
 NORDLAND_SOURCES = ("nordland_images", "nordland_videos", "folders")
@@ -33,7 +29,6 @@ BENCHMARK_PAIRS = {
 }
 BENCHMARK_SOURCES = tuple(BENCHMARK_PAIRS)
 SOURCES = (*ROUTE_SOURCES, *BENCHMARK_SOURCES)
-SOURCE_FREE_PRESETS = ("real",)  # presets that set no data keys: their logdirs name the source
 OPTIMIZERS = ("adam", "adamw", "sgd")  # optax's functions of these names
 PREPROCESSES = ("none", "patchnorm")
 # How PR recall counts (docs/metrics.md, "PR conventions"; vpr_jax.evaluation.metrics).
@@ -484,25 +479,6 @@ knobs (``SweepKnobs``) and, under each built-in method's name, its settings as g
 (docs/config.md lists every key)."""
 
 
-# Sweep knobs that take a list; written without brackets (methods=raw,pca) they are one.
-_LIST_KEYS = ("methods", "removed_pcs", "seeds", "data.seasons", "sequence.ds")
-
-
-def _normalise_cli(argv: list[str]) -> list[str]:
-    """Accept ``methods=raw,pca`` as well as ``methods=[raw,pca]`` and a list of pairs."""
-    out = []
-    for arg in argv:
-        key, sep, value = arg.partition("=")
-        if not sep:
-            raise UserError(f"argument {arg!r} is not key=value: write e.g. season_pairs=all")
-        if key in _LIST_KEYS and value and not value.startswith("["):
-            value = f"[{value}]"
-        if key == "season_pairs" and value.startswith("["):
-            value = value.strip("[]")
-        out.append(f"{key}={value}")
-    return out
-
-
 def precomputed_sets(value: dict) -> dict[str, dict[str, str]]:
     """``precomputed.*`` settings as {set name: {"database": path, "queries": path}}, the
     paths absolute. One set may be written flat (``precomputed.database``, ``.queries``,
@@ -529,43 +505,11 @@ def precomputed_sets(value: dict) -> dict[str, dict[str, str]]:
     return sets
 
 
-def given_keys(argv: list[str]) -> frozenset[str]:
-    """The dotted keys ``key=value`` arguments set (``ica.n_components``, ``removed_pcs``)."""
-    return frozenset(arg.partition("=")[0] for arg in argv)
-
-
-def asked_keys(argv: list[str]) -> frozenset[str]:
-    """What the user asked for by name: the keys of the command line and of its preset
-    file, unless that preset sets no data keys (``SOURCE_FREE_PRESETS``: it asks for nothing
-    a source cannot serve). What learns from aligned places is refused on data without them
-    when asked for, and left out quietly otherwise."""
-    given = given_keys(argv)
-    preset = dict(a.partition("=")[::2] for a in argv).get("preset", SweepKnobs.preset)
-    if preset in SOURCE_FREE_PRESETS or not (PRESET_DIR / f"{preset}.yaml").is_file():
-        return given
-    return given | _dotted(OmegaConf.to_container(OmegaConf.load(PRESET_DIR / f"{preset}.yaml")))
-
-
-def _dotted(tree: dict, prefix: str = "") -> frozenset[str]:
-    keys = set()
-    for key, value in tree.items():
-        keys.add(f"{prefix}{key}")
-        if isinstance(value, dict):
-            keys |= _dotted(value, f"{prefix}{key}.")
-    return frozenset(keys)
-
-
-def _first_line(err: OmegaConfBaseException) -> str:
-    lines = str(err).splitlines()
-    key = next((ln.split(":", 1)[1].strip() for ln in lines if "full_key:" in ln), "")
-    return f"{lines[0]} (key {key})" if key else lines[0]
-
-
-def _normalised(cfg: SweepConfig) -> SweepConfig:
+def normalised(cfg: SweepConfig) -> SweepConfig:
     """The config as the sweep reads it, made where OmegaConf hands it over: counts sorted
     and each once, outside sets by name with absolute paths, ``methods`` without the
     ``precomputed`` entry (it stands for the sets), the default logdir named."""
-    source = f"_{cfg.data.source}" if cfg.preset in SOURCE_FREE_PRESETS else ""
+    source = f"_{cfg.data.source}" if cfg.preset in presets.SOURCE_FREE else ""
     return dataclasses.replace(
         cfg,
         removed_pcs=tuple(sorted(set(cfg.removed_pcs))),
@@ -574,37 +518,6 @@ def _normalised(cfg: SweepConfig) -> SweepConfig:
         methods=tuple(m for m in cfg.methods if m != method_table.PRECOMPUTED),
         logdir=cfg.logdir or f"runs/{cfg.preset}{source}",
     )
-
-
-def parse_config(argv: list[str]) -> SweepConfig:
-    """Build the typed config from ``key=value`` arguments, defaults and the preset file.
-    Each method's settings stay as given until the plan checks them with the method's own
-    ``Settings`` (``experiments.resolve``)."""
-    try:
-        cli = OmegaConf.from_dotlist(_normalise_cli(argv))
-        preset = cli.get("preset", SweepKnobs.preset)
-        preset_file = PRESET_DIR / f"{preset}.yaml"
-        if not preset_file.is_file():
-            known = sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
-            raise UserError(
-                f"preset={preset} has no file {preset_file}: use one of {', '.join(known)}"
-            )
-        merged = OmegaConf.merge(
-            OmegaConf.structured(SweepConfig), OmegaConf.load(preset_file), cli
-        )
-        return _normalised(OmegaConf.to_object(merged))
-    except OmegaConfBaseException as err:
-        raise UserError(f"bad config: {_first_line(err)}: see docs/config.md") from None
-
-
-def config_from_dict(saved: dict) -> SweepConfig:
-    """A config saved as plain data (a logdir's config.yaml, without its format) as the
-    typed config it was."""
-    try:
-        merged = OmegaConf.merge(OmegaConf.structured(SweepConfig), saved)
-        return _normalised(OmegaConf.to_object(merged))
-    except OmegaConfBaseException as err:
-        raise UserError(f"bad saved config: {_first_line(err)}: rerun the sweep") from None
 
 
 def training_identity(settings: TrainConfig) -> dict:

@@ -8,10 +8,10 @@ imports the objects (``experiments.resolve``). Adding a built-in: a module with 
 ``Settings`` and ``method``, and one line in ``BUILTIN`` (docs/methods.md, "Adding a
 built-in method"); its colour follows from its place here.
 
-And one source of descriptors that is not a fitted method: ``precomputed`` sets, computed
-elsewhere and read from ``.npy`` files (``precomputed.<name>.database=PATH``,
-``precomputed.<name>.queries=PATH``; ``vpr_jax.methods.precomputed``). Each set is a row
-named ``<name>``; it fits nothing, so nothing is saved or exported as an encoder.
+And descriptors computed elsewhere, read from ``.npy`` files
+(``precomputed.<name>.database=PATH``, ``precomputed.<name>.queries=PATH``): each set is a
+method of its own named ``<name>`` (``outside_info``), the one object ``OUTSIDE``
+(``vpr_jax.methods.precomputed``) that keeps and looks up the set's rows.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ class MethodInfo(NamedTuple):
     name: str  # results.csv's method column; its runs' and fitted states' folder names
     method: str  # "module:object" with fit, encode and declarations (methods.contract)
     plugin: bool = False  # a user's method (methods=[...,module:name])
-    precomputed: bool = False  # descriptors made elsewhere: nothing fitted, saved or exported
+    precomputed: bool = False  # a set of descriptors made elsewhere (precomputed.<name>.*)
 
 
 BUILTIN: tuple[MethodInfo, ...] = (
@@ -46,6 +46,7 @@ NAMES: tuple[str, ...] = tuple(METHODS)
 # SharedFit object).
 OFFERS = {"pca_fit": ("pca", "vpr_jax.methods.pca:shared")}
 PRECOMPUTED = "precomputed"  # the methods entry that asks for outside descriptors only
+OUTSIDE = "vpr_jax.methods.precomputed:method"  # the method every set of them is
 
 # What a method that learns from aligned places is told on data without them.
 ALIGNED_FIX = (
@@ -139,6 +140,11 @@ def check_precomputed(names: tuple[str, ...], methods: tuple[str, ...]) -> str |
                 "another way (precomputed.name=NAME, or precomputed.<NAME>.database=PATH)"
             )
     return None
+
+
+def outside_info(name: str) -> MethodInfo:
+    """A set of outside descriptors (``precomputed.<name>.*``) as a row of the table."""
+    return MethodInfo(name=name, method=OUTSIDE, precomputed=True)
 
 
 def info_of(entry: str) -> MethodInfo:

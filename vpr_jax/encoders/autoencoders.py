@@ -125,11 +125,10 @@ class FAE(nnx.Module, _Residual):
 
     The seed's layer is centre = 0. Then each unit's pre-activation carries 0.5 x the sum of
     its weights, nearly the same for every image: about half the ReLU units start dead and
-    training kills most of the rest (28 of 256 fire on summer-fall's test images of the
-    built-in route, recall@1 0.42); on patch-normalised images, whose patches all have the
-    same mean, every unit dies. Subtracting mid-grey keeps them alive (167 fire, recall@1
-    0.60; all 256 on patch-normalised images), which starting the bias at -0.5 x the weight
-    sums does not: the weights' gradients need the centred input too.
+    training kills most of the rest; on patch-normalised images, whose patches all have the
+    same mean, every unit dies. Subtracting mid-grey keeps them alive, which starting the
+    bias at -0.5 x the weight sums does not: the weights' gradients need the centred input
+    too (the counts: docs/methods.md, "fae").
     """
 
     def __init__(self, spec: FAESpec, n_pixels: int, *, rngs: nnx.Rngs):

@@ -78,11 +78,11 @@ def rank_limit(n_samples: int, n_features: int) -> int:
 
 def rank_tolerance(n_samples: int, n_features: int) -> float:
     """The numerical rank's floor on a component's variance, relative to the largest:
-    ``sqrt(max(n, d)) * eps`` (float32), 5.4e-6 for 2,048 pixels. Every solver forms sums
-    of products of length n or d in float32, whose rounding grows as the square root of
-    the length (Higham's probabilistic bound; LAPACK's worst-case rule, ``max(n, d) * eps``,
-    would drop components that float32 resolves to 0.1%): a zero variance came out at up
-    to 2 eps on the measured sets (docs/methods.md, "PCA on any training set")."""
+    ``sqrt(max(n, d)) * eps`` (float32). Every solver forms sums of products of length n or
+    d in float32, whose rounding grows as the square root of the length (Higham's
+    probabilistic bound); LAPACK's worst-case rule, ``max(n, d) * eps``, would drop
+    components float32 resolves well (the measurements: docs/methods.md, "PCA on any
+    training set")."""
     return math.sqrt(max(n_samples, n_features)) * float(np.finfo(np.float32).eps)
 
 
@@ -228,8 +228,8 @@ def _fit_gram(x: Float[Array, "n d"], n_components: int) -> PCAState:
     xc = x - mean
     _, eigvecs = jnp.linalg.eigh(xc @ xc.T)
     # Right singular vectors from left ones, v_i = Xc^T u_i / sigma_i, hold only where
-    # lambda_i stands well above rounding (on real frames they drift from orthogonal by
-    # 2e-3 at 400 components); as a basis for Rayleigh-Ritz, they give exact components.
+    # lambda_i stands well above rounding (on real frames they drift from orthogonal well
+    # before the rank's floor); as a basis for Rayleigh-Ritz, they give exact components.
     leading = eigvecs[:, ::-1][:, :n_components]
     return _rayleigh_ritz(lambda q: xc @ q, n, xc.T @ leading, n_components)._replace(mean=mean)
 
@@ -270,14 +270,14 @@ CHOLESKY_SHIFT = 1e-5
 def _orthonormalise(y):
     """Columns spanning ``y``'s leading directions, orthonormal where ``y`` is well
     conditioned: shifted Cholesky QR twice, ``R = chol(Y^T Y + s I)`` with ``s`` =
-    ``CHOLESKY_SHIFT`` x trace. Plain Cholesky QR squares the block's condition number,
-    which on real Nordland frames (their spectrum falls by more than 1e4 over 400
-    components) passes float32's 1 / epsilon and turned every component NaN; the shift keeps
-    the factor finite, and directions below it (noise to the power iteration) merely come out
-    short. The last block goes through Householder QR before Rayleigh-Ritz, so the fitted
-    components are orthonormal regardless. Pure XLA: a LAPACK call between the power
-    iterations leaves OpenBLAS threads spinning, which slowed the next product 1.6x on 2
-    cores."""
+    ``CHOLESKY_SHIFT`` x the mean diagonal, at least the factor's rounding (the block's width
+    x eps x its largest diagonal entry). Plain Cholesky QR squares the block's condition
+    number, which on real frames' steep spectrum passes float32's 1 / epsilon and turned
+    every component NaN; the shift keeps the factor finite, and directions below it (noise
+    to the power iteration) merely come out short. The last block goes through Householder
+    QR before Rayleigh-Ritz, so the fitted components are orthonormal regardless. Pure XLA:
+    a LAPACK call between the power iterations leaves OpenBLAS threads spinning, which slows
+    the next product (docs/speed.md)."""
     for _ in range(2):
         gram = y.T @ y
         size = gram.shape[0]

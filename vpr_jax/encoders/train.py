@@ -44,6 +44,7 @@ from vpr_jax.data.augment import PLACE, TABLE2, AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import checkpoints, objectives
 from vpr_jax.errors import UserError
+from vpr_jax.files import lock_folder
 from vpr_jax.progress import Bar
 from vpr_jax.sharding import AXIS
 
@@ -571,6 +572,13 @@ def fit_autoencoder(spec: ae.Spec, data: TrainingData, options: TrainOptions) ->
     match the checkpoint's. With a ``mesh`` each batch is split across its devices."""
     began = time.perf_counter()
     o, settings = options, options.settings
+    if o.checkpoint_dir is not None and jax.process_index() == 0:
+        # Logdirs of one name under different parents share a folder: one writer.
+        lock_folder(
+            o.checkpoint_dir,
+            "checkpoint folder",
+            "wait for it to finish, or give this logdir another name (or set train.checkpoint_dir)",
+        )
     train_images, val_images = (np.asarray(x, np.float32) for x in data)
     shape = _image_shape(train_images, o.objective)
     trainer, fresh = make_trainer(

@@ -1,6 +1,6 @@
-"""What the two auto-encoders (``fae``, ``cae``) share as methods: a fit trains one model
-(or resumes it, or restores it from its checkpoint) and keeps the epoch whose code scores the
-best recall@1 on the validation places; its state is the model (``ae.ModelState``).
+"""What the two auto-encoders (``fae``, ``cae``) share as methods: their settings' checks,
+their starts, and the method a model's architecture makes; a fit trains one model
+(``vpr_jax.methods.training``) and its state is the model (``ae.ModelState``).
 
 The model learns from both seasons' training images: the images themselves for
 ``reconstruct``, the aligned places' pairs for the paired objectives
@@ -16,26 +16,16 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import zlib
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any
 
-import jax
 import numpy as np
 
-from vpr_jax import sharding
-from vpr_jax.config import TrainConfig, plain, training_identity
+from vpr_jax.config import TrainConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import objectives
-from vpr_jax.encoders.train import (
-    Start,
-    TrainingData,
-    TrainOptions,
-    TrainResult,
-    fit_autoencoder,
-)
+from vpr_jax.encoders.train import Start
 from vpr_jax.errors import UserError
-from vpr_jax.files import lock_folder
 from vpr_jax.methods.contract import (
     ROWS,
     Method,
@@ -46,6 +36,7 @@ from vpr_jax.methods.contract import (
     Validation,
 )
 from vpr_jax.methods.pca import shared
+from vpr_jax.methods.training import Fit, Model, fit_model
 
 INPUTS = ("pixels", "residual")  # what the model sees: <method>.input
 # How the weights start (<method>.init): drawn, or at a linear solution of the model's own
@@ -78,8 +69,7 @@ TRAINING_FIELDS = tuple(f.name for f in dataclasses.fields(TrainingSettings))
 
 
 def _training_values(settings: Any) -> dict:
-    values = settings if isinstance(settings, dict) else dataclasses.asdict(settings)
-    return {k: values[k] for k in TRAINING_FIELDS}
+    return {k: getattr(settings, k) for k in TRAINING_FIELDS}
 
 
 def start_of(init: str, train: np.ndarray, aligned) -> Start | None:
@@ -187,109 +177,6 @@ def needs(settings: Any) -> tuple[str, ...]:
     return ("validation", "training", "mesh") + (
         ("pca_fit",) if settings is not None and settings.input == "residual" else ()
     )
-
-
-class Model(NamedTuple):
-    """What tells one auto-encoder from the other: its architecture and its start."""
-
-    spec: Callable[[int], ae.Spec]  # removed components -> the architecture
-    start: Start | None  # other starting weights than the drawn ones (the FAE's linear start)
-
-
-class Fit(NamedTuple):
-    """One fit of an auto-encoder method."""
-
-    name: str  # the method's: folds into the key, so fae and cae start from other draws
-    model: Model
-    values: dict  # every setting of the fit (its objective, epochs...): part of the
-    # checkpoint's identity
-
-
-def fit_model(
-    fit: Fit,
-    train: np.ndarray,
-    key: jax.Array,
-    *,
-    validation: Validation,
-    training: Training,
-    mesh,
-    pca_fit: PCAFit | None,
-) -> ae.ModelState:
-    """Train (or resume, or restore) the fit's model and keep its best epoch."""
-    k = fit.values["residual_pcs"] if fit.values["input"] == "residual" else 0
-    removal = None
-    if k:
-        state = pca_fit.state
-        removal = {"removal_mean": state.mean, "removal_basis": state.components[:k]}
-    spec = fit.model.spec(k)
-    settings = dataclasses.replace(
-        TrainConfig(**_training_values(fit.values)),
-        checkpoint_every_s=training.checkpoint_every_s,
-    )
-    key = jax.random.fold_in(key, zlib.crc32(fit.name.encode()))
-    objective = fit.values["objective"]
-    data = TrainingData(
-        objectives.training_data(objective, train),
-        objectives.training_data(objective, validation.images),
-    )
-    result = _train(fit, spec, settings, data, key, removal, validation, training, mesh)
-    return ae.ModelState(
-        params=jax.tree.map(sharding.to_host, result.params),  # encoded on one device
-        epochs=np.int32(result.epochs),
-        stopped_early=np.bool_(result.stopped_early),
-        train_seconds=np.float32(result.train_seconds),
-        spec=spec,
-        image_shape=tuple(int(s) for s in train.shape[1:3]),
-    )
-
-
-def _train(
-    fit: Fit,
-    spec: ae.Spec,
-    settings: TrainConfig,
-    data: TrainingData,
-    key: jax.Array,
-    removal: dict | None,
-    validation: Validation,
-    training: Training,
-    mesh,
-) -> TrainResult:
-    """One model: trained, resumed or restored in its checkpoint folder."""
-    folder = training.folder / "training" if training.folder is not None else None
-    if folder is not None and jax.process_index() == 0:
-        # Logdirs of one name under different parents share this folder: one writer.
-        lock_folder(
-            folder,
-            "checkpoint folder",
-            "wait for it to finish, or give this logdir another name (or set train.checkpoint_dir)",
-        )
-    log = training.log("")
-    if removal is not None:
-        log.line(
-            f"{training.name}: input residual, {len(removal['removal_basis'])} leading "
-            "components of the pair's PCA fit removed"
-        )
-    options = TrainOptions(
-        key=key,
-        settings=settings,
-        objective=fit.values["objective"],
-        validate=lambda encode: validation.recall_at_1(encode)[0],
-        checkpoint_dir=folder,
-        identity={
-            **training.identity,
-            "model": plain(fit.values),
-            "train": training_identity(settings),
-        },
-        log=log,
-        name=training.name,
-        mesh=mesh,
-        fixed=removal,
-        start=fit.model.start,
-    )
-    try:
-        return fit_autoencoder(spec, data, options)
-    finally:
-        log.close()
 
 
 def autoencoder_method(

@@ -38,7 +38,7 @@ AXIS_KINDS = (SERVED, SUFFIX, ROWS)
 # What a method may need (``needs``): aligned training places, and what its fit takes from
 # the runner by keyword.
 ALIGNED = "aligned"
-RESOURCES = ("pca_fit", "validation", "training", "mesh")
+RESOURCES = ("pca_fit", "validation", "training", "mesh", "outside")
 NEEDS = (ALIGNED, *RESOURCES)
 
 
@@ -61,6 +61,8 @@ class Report(NamedTuple):
     warning: str | None = None  # one line for the run log
     basis: np.ndarray | None = None  # (m, 32 * 64): what the fit removed or learned
     basis_name: str = "basis"  # its TensorBoard tag: basis/<basis_name>
+    validation: bool = True  # False: the state cannot describe the validation places (NaN
+    # validation scores: nothing is chosen on them)
 
 
 class TrainingSet(NamedTuple):
