@@ -15,7 +15,7 @@ OPENBLAS_L2_SIZE (``peers.py``); the dense-metrics peer is numpy indexing, in th
 and, at the full route's size (3,569 queries, top-10 of a 35,768-frame database), the
 metrics against a numpy peer that builds the dense (queries x database) ground truth.
 ``--tiny`` (for the tests): ``common.TINY_SIZES``, a 2,000-frame database for the metrics,
-one warm run, the peers on the same tiny data.
+one warm run, the peers on the same tiny data, in this process.
 """
 
 from __future__ import annotations

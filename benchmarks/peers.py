@@ -10,7 +10,10 @@ machine without them, while our side runs in the benchmark's own process as a us
 Every task builds the same data as the benchmarks (``common.seed_route``) and reports the
 median of warm runs, the first run, and the BLAS libraries threadpoolctl saw; with
 ``--tiny``, the benchmarks' tiny data (``common.route_sizes(tiny=True)``, FastICA of
-``common.TINY_ICA_COMPONENTS`` components), as their own ``--tiny`` builds it.
+``common.TINY_ICA_COMPONENTS`` components), as their own ``--tiny`` builds it. A benchmark's
+``--tiny`` runs its peers in its own process (``run_peer(..., tiny=True)``): its figures mean
+nothing, and a fresh interpreter per peer is most of a tiny run's time (tests/
+test_benchmark_scripts.py starts this script itself, test_peers).
 """
 
 from __future__ import annotations
@@ -51,9 +54,12 @@ def ours_report() -> str:
 
 
 def run_peer(task: str, repeats: int, tiny: bool = False) -> dict:
-    """Run ``task`` in a fresh process without the kernel-forcing variables (``tiny``: on
-    the tiny data, ``peers.py TASK --tiny``); returns its JSON (``seconds``: warm median,
-    ``first``, ``blas``, and task extras)."""
+    """Run ``task`` in a fresh process without the kernel-forcing variables; returns its
+    JSON (``seconds``: warm median, ``first``, ``blas``, and task extras). ``tiny``: on the
+    tiny data, in this process (``measure``; its ``blas`` says so)."""
+    if tiny:
+        report = measure(task, repeats, tiny=True)
+        return {**report, "blas": f"{report['blas']} (in this process: --tiny)"}
     env = {k: v for k, v in os.environ.items() if k not in FORCING}
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(HERE)])
     cmd = [sys.executable, str(HERE / "peers.py"), task, "--repeats", str(repeats)]
@@ -139,6 +145,14 @@ def _tasks(tiny: bool):
 TASKS = ("pca_covariance_eigh", "pca_randomized_100", "fastica_256", "numpy_top_k")
 
 
+def measure(task: str, repeats: int, tiny: bool = False) -> dict:
+    """``task`` timed in this process: ``task``, ``seconds`` (warm median of ``repeats``
+    runs; FastICA: the first), ``first`` and ``blas`` (the BLAS libraries loaded here)."""
+    fn, fixed = _tasks(tiny)[task]
+    first, seconds = _timed(fn, repeats if fixed is None else fixed)
+    return {"task": task, "seconds": seconds, "first": first, "blas": blas_report()}
+
+
 def main() -> None:
     from common import TINY_HELP
 
@@ -147,11 +161,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     args = parser.parse_args()
-    fn, repeats = _tasks(args.tiny)[args.task]
-    first, seconds = _timed(fn, args.repeats if repeats is None else repeats)
-    print(
-        json.dumps({"task": args.task, "seconds": seconds, "first": first, "blas": blas_report()})
-    )
+    print(json.dumps(measure(args.task, args.repeats, args.tiny)))
 
 
 if __name__ == "__main__":

@@ -18,7 +18,8 @@ it is (e.g. ``fae.epochs=100 train.augment=false``).
 
 ``--tiny`` (for the tests): 60 training places, a 4-frame gap and 30 test places unless the
 options name others (a DATA_ROOT of 94 frames a season serves), and ``TINY_OVERRIDES``
-(tiny models, one epoch, two removed-PC counts) before any KEY=VALUE given.
+(tiny models, one epoch, two removed-PC counts) before any KEY=VALUE given; the sweep runs
+by its ``main`` in this process (a second interpreter would be most of a tiny run's time).
 """
 
 from __future__ import annotations
@@ -72,6 +73,18 @@ def sweep_args(args: argparse.Namespace) -> list[str]:
     ]
 
 
+def run_sweep(argv: list[str], in_process: bool = False) -> int:
+    """``python -m experiments.sweep ARGV`` in the repository (``in_process``: its ``main``
+    here); its exit code."""
+    if in_process:
+        from experiments import sweep
+
+        return sweep.main(argv)
+    command = [sys.executable, "-m", "experiments.sweep", *argv]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.run(command, cwd=REPO, env=env).returncode
+
+
 def table(rows) -> str:
     """One line per method and objective: the removed-PC count chosen on the validation
     places (``selected``), its test figures with the recall@1 interval, the selected row
@@ -123,11 +136,9 @@ def main() -> int:
         if getattr(args, key) is None:
             setattr(args, key, value)
     args.logdir = str(Path(args.logdir).expanduser().resolve())  # the sweep runs in REPO
-    command = [sys.executable, "-m", "experiments.sweep", *sweep_args(args)]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.run(command, cwd=REPO, env=env)
-    if proc.returncode:
-        return proc.returncode
+    code = run_sweep(sweep_args(args), in_process=args.tiny)
+    if code:
+        return code
     print(table(read_results(Path(args.logdir) / "results.csv")))
     return 0
 

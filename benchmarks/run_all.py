@@ -31,8 +31,8 @@ FAE, CAE; compilation and data generation included), with its peak RSS. ``--skip
 Ours: warm medians of --repeats runs in this process; peers the same, each in a fresh
 process without OPENBLAS_CORETYPE / OPENBLAS_L2_SIZE (``peers.py``: their native kernel).
 ``--tiny`` (for the tests; the figures mean nothing): ``common.TINY_SIZES`` on both sides,
-FastICA of 8 components, one warm run, the protocol on a tiny route (``TINY_PROTOCOL``),
-scaling at ``scaling.TINY_FRAMES``, and no whole-route row.
+FastICA of 8 components, one warm run, the peers in this process, the protocol on a tiny
+route (``TINY_PROTOCOL``), scaling at ``scaling.TINY_FRAMES``, and no whole-route row.
 """
 
 from __future__ import annotations
@@ -239,8 +239,10 @@ def full_route_row(table: Table) -> None:
     print(f"  preset=full took {wall:.0f} s")
 
 
-def scaling_rows(table: Table, repeats: int, plot_path: Path | None, frames) -> None:
-    result = measure_scaling(list(frames), repeats)
+def scaling_rows(
+    table: Table, repeats: int, plot_path: Path | None, frames, tiny: bool = False
+) -> None:
+    result = measure_scaling(list(frames), repeats, tiny)
     if plot_path is not None:
         plot_scaling(result, plot_path)
     fits = result["exponents"]
@@ -298,7 +300,7 @@ def main() -> None:
         full_route_row(table)
     if not args.skip_scaling:
         frames = TINY_SCALING_FRAMES if args.tiny else SCALING_FRAMES
-        scaling_rows(table, max(1, args.repeats // 2), args.scaling_plot, frames)
+        scaling_rows(table, max(1, args.repeats // 2), args.scaling_plot, frames, args.tiny)
     print()
     table.print()
     print(f"\ntotal {time.perf_counter() - start:.0f} s")

@@ -184,17 +184,35 @@ def validation_scores(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> Ca
     return scores
 
 
-def _what_was_measured(pair: PairData) -> dict:
-    """A row's columns that describe its pair: seasons, sizes, ground truth, protocol."""
+def _what_was_measured(pair: PairData, desc: Descriptors) -> dict:
+    """A row's columns that describe its pair: seasons, sizes (the training places the fit
+    used: all of the pair's unless ``split.train_places`` took fewer), ground truth,
+    protocol."""
     return {
         "season_pair": pair.name,
         "db_season": pair.db_season,
         "query_season": pair.query_season,
-        "n_train": len(pair.train),
+        "n_train": len(pair.train) if desc.n_train is None else desc.n_train,
         "n_test": len(pair.query),
         "tolerance": pair.truth.tolerance if isinstance(pair.truth, Tolerance) else -1,
         "ground_truth": pair.truth.describe(),
         "protocol": pair.protocol,
+    }
+
+
+def _how_it_was_fitted(desc: Descriptors) -> dict:
+    """results.csv's columns of the fit behind ``desc``: its time, iterations, the epoch it
+    kept of those it trained, its start and seed."""
+    return {
+        "fit_seconds": desc.fit_seconds,
+        "encode_ms_per_image": desc.encode_ms_per_image,
+        "n_iter": desc.n_iter,
+        "converged": int(desc.converged),
+        "stopped_early": int(desc.stopped_early),
+        "kept_epoch": desc.kept_epoch,
+        "epochs_trained": desc.epochs_trained,
+        "start": desc.start,
+        "seed": desc.seed,
     }
 
 
@@ -228,7 +246,7 @@ def save_cell(
     )
     _write_run(logdir, name, cfg, pair, desc, cell, ds, top, ev)
     row = ResultRow(
-        **_what_was_measured(pair),
+        **_what_was_measured(pair, desc),
         method=desc.method,
         objective=desc.objective,
         setting=part.setting,
@@ -244,12 +262,7 @@ def save_cell(
         val_auc_pr=val.auc_pr,
         val_margin=val.margin,
         selected=0,
-        fit_seconds=desc.fit_seconds,
-        encode_ms_per_image=desc.encode_ms_per_image,
-        n_iter=desc.n_iter,
-        converged=int(desc.converged),
-        stopped_early=int(desc.stopped_early),
-        seed=desc.seed,
+        **_how_it_was_fitted(desc),
         run=name,
     )
     append_results(logdir / "results.csv", [row])

@@ -60,6 +60,7 @@ def _setting(row: dict) -> str:
     parts = [
         row["cell"] if row["cell"] != row["setting"] else row["setting"],
         f"seed {row['seed']}" if row["seed"] not in ("", "0") else "",
+        "(its start)" if row.get("kept_epoch") == "0" else "",
     ]
     return " ".join(p for p in parts if p)
 

@@ -26,7 +26,7 @@ from experiments.plan import Plan
 from experiments.resolve import Fit, Served
 from experiments.resolve import needs as resolve_needs
 from experiments.saving import save_state
-from vpr_jax.data.pair import PairData
+from vpr_jax.data.pair import PairData, with_train_places
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.method_table import MethodInfo
 from vpr_jax.methods.contract import (
@@ -76,13 +76,13 @@ def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
     declared, provider = run.plan.shared["pca_fit"]
     own = fit.method.info == provider.info
     settings = fit.settings if own else provider.combinations[0].settings
-    key = fit_key(provider.method, settings)
+    key = (fit_key(provider.method, settings), fit.train_places)
     if key not in run.shared:
-        n_images, n_pixels = len(run.data.train), int(np.prod(run.data.train.shape[1:]))
+        train = fitted_on(fit, run).train
+        n_images, n_pixels = len(train), int(np.prod(train.shape[1:]))
         asked = declared.components(settings, n_images, n_pixels)
         state, seconds = timed(
-            lambda x: declared.fit(x, asked, settings, run.mesh, run.plan.cfg.seed),
-            run.data.train,
+            lambda x: declared.fit(x, asked, settings, run.mesh, run.plan.cfg.seed), train
         )
         held = len(state.components)
         if held < asked:
@@ -94,6 +94,12 @@ def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
             )
         run.shared[key] = PCAFit(state=state, seconds=seconds, asked=asked)
     return run.shared[key]
+
+
+def fitted_on(fit: Fit, run: PairRun) -> PairData:
+    """The pair as the fit sees it: its training places thinned to ``split.train_places``
+    (the validation and test places as they are)."""
+    return with_train_places(run.data, fit.train_places)
 
 
 def fit_key(method, settings: Any) -> str:
@@ -136,6 +142,7 @@ def _training(fit: Fit, run: PairRun) -> Training:
             "seed": fit.seed,
             "season_pair": pair,
             "method": fit.method.name,
+            "train_places": fit.train_places,
         },
         name=f"{pair} {fit.folder}",
         checkpoint_every_s=cfg.train.checkpoint_every_s,
@@ -195,7 +202,7 @@ def _encoder(fit: Fit, state: Any, served: dict) -> Callable:
 
 def run_fit(fit: Fit, run: PairRun) -> tuple[Any, float, float]:
     """The fit's state, its seconds, and the seconds of the shared PCA fit it used."""
-    info, method, data = fit.method.info, fit.method.method, run.data
+    info, method, data = fit.method.info, fit.method.method, fitted_on(fit, run)
     given = resources(fit, run)
     aligned = data.aligned_train if data.aligned_training else None
     key = jax.random.key(fit.seed)
@@ -266,6 +273,7 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
     warning = "; ".join(w for w in (first.warning, degenerate_warning(db, query)) if w) or None
     val_db, val_query = encode_validation(encode, data) if first.validation else (None, None)
     shape, (own, shared) = data.train.shape[1:], seconds
+    n_train = len(fitted_on(fit, run).train)
     return Descriptors(
         method=fit.method.name,
         objective=fit.objective,
@@ -281,6 +289,10 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
         n_iter=first.n_iter,
         converged=first.converged,
         stopped_early=first.stopped_early,
+        kept_epoch=first.kept_epoch,
+        epochs_trained=first.epochs_trained,
+        start=first.start,
+        n_train=n_train,
         basis=tuple(
             None
             if r.basis is None

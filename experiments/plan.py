@@ -164,6 +164,7 @@ def make_plan(
     _check_baseline(cfg, methods, given)
     shared = resolve.shared_fits(cfg)
     data = _load(cfg, benchmark, log)
+    _check_train_places(cfg, data)
     mesh = start_devices(cfg.mesh, log)
     n_images, n_pixels = data.n_train, data.n_pixels
     held = shared_components(shared, n_images, n_pixels)
@@ -191,6 +192,17 @@ def make_plan(
         identity=identity(cfg),
         mesh=mesh,
     )
+
+
+def _check_train_places(cfg: SweepConfig, data) -> None:
+    """``split.train_places`` within the training places a pair has."""
+    places = cfg.split.train_places or ()
+    held = data.n_train // 2 if data.route is not None else data.n_train
+    if places and max(places) > held:
+        raise UserError(
+            f"split.train_places={list(places)} goes beyond the {held} training places a "
+            f"season has here: use counts up to {held}"
+        )
 
 
 def shared_components(shared: dict, n_images: int, n_pixels: int) -> int:

@@ -24,6 +24,7 @@ from vpr_jax.outputs.palette import compare_labels, label_of
 from vpr_jax.outputs.plots import (
     by_label,
     correct_matches_figure,
+    learning_curves_figure,
     pr_curves_figure,
     recall_vs_ds_figure,
 )
@@ -37,11 +38,14 @@ from vpr_jax.outputs.results import (
     best_rows,
     choice_order,
     choices,
+    largest_places,
+    plain_setting,
     read_results,
     selected_rows,
     selection_reasons,
     settings_of,
     sweep_labels,
+    training_places,
 )
 from vpr_jax.outputs.tb import CompareSeries, SummaryCell, write_method_run, write_pair_summary
 from vpr_jax.progress import RunLog
@@ -56,6 +60,7 @@ def report_steps(logdir: Path, cfg: SweepConfig, rows: list[ResultRow]) -> dict[
     so a failing figure cannot cost them."""
     curve = curve_reader(logdir)
     figures = logdir / "figures"
+    main = largest_places(rows)  # a learning curve's largest point, beside every other row
 
     def figure(draw: Callable, name: str) -> Callable:
         def step():
@@ -66,23 +71,30 @@ def report_steps(logdir: Path, cfg: SweepConfig, rows: list[ResultRow]) -> dict[
 
     steps = {
         "results.md": lambda: atomic_write_text(
-            logdir / "results.md", markdown_table(rows, *differences_to_baseline(rows, curve, cfg))
+            logdir / "results.md",
+            markdown_table(
+                rows, *differences_to_baseline(rows, curve, cfg), same_models(rows, curve)
+            ),
         ),
-        f"the {SUMMARY} runs": lambda: write_tb_summaries(logdir, rows, curve, cfg),
+        f"the {SUMMARY} runs": lambda: write_tb_summaries(logdir, main, curve, cfg),
         f"the {COMPARE} runs": lambda: write_tb_compare(logdir, rows, curve, cfg),
         "figures/pr_curves.png": figure(
             lambda path: pr_curves_figure(
-                rows, lambda mine: pooled_curve(mine, curve, cfg.pr_convention), path
+                main, lambda mine: pooled_curve(mine, curve, cfg.pr_convention), path
             ),
             "pr_curves.png",
         ),
         "figures/correct_matches.png": figure(
-            lambda path: correct_matches_figure(rows, path), "correct_matches.png"
+            lambda path: correct_matches_figure(main, path), "correct_matches.png"
         ),
     }
     if len({r.ds for r in rows}) > 1:
         steps["figures/recall_vs_ds.png"] = figure(
-            lambda path: recall_vs_ds_figure(rows, path), "recall_vs_ds.png"
+            lambda path: recall_vs_ds_figure(main, path), "recall_vs_ds.png"
+        )
+    if any(training_places(r) is not None for r in rows):
+        steps["figures/learning_curves.png"] = figure(
+            lambda path: learning_curves_figure(rows, path), "learning_curves.png"
         )
     return steps
 
@@ -150,8 +162,10 @@ def curve_reader(logdir: Path) -> Curves:
 
 
 def _setting_text(row: ResultRow) -> str:
-    """A cell's setting in words: its swept settings and the sweep's keys (k=5)."""
-    return " ".join(x for x in (row.setting, *sweep_labels(row)) if x)
+    """A cell's setting in words: its swept settings and the sweep's keys (k=5), and a
+    trained model kept at its start says so."""
+    start = f"(its start: {row.start}, no epoch beat it)" if row.kept_epoch == 0 else ""
+    return " ".join(x for x in (row.setting, *sweep_labels(row), start) if x)
 
 
 def _seeds_text(rows: list[ResultRow]) -> str:
@@ -197,7 +211,8 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
     colours them (``vpr_jax.outputs.palette``); a method without the removed-PC axis is a
     flat line over its pair's counts."""
     shortest = min(r.ds for r in rows)
-    single = [r for r in rows if r.ds == shortest]
+    every = [r for r in rows if r.ds == shortest]
+    single = largest_places(every)
     staging = logdir / INCOMPLETE / COMPARE
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
@@ -217,7 +232,11 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
             if _step(mine[0]) is None:  # a flat line over the pair's steps
                 points = [(k, points[0][1], points[0][2]) for k in steps or [0]]
             chosen = max(next(iter(choices(mine).values())), key=Choice.val_score)
-            series[pair] = CompareSeries(points=points, **pooled_arrays(list(chosen.rows), curve))
+            series[pair] = CompareSeries(
+                points=points,
+                **pooled_arrays(list(chosen.rows), curve),
+                learning=_learning_points(every, pair, label),
+            )
         write_method_run(
             staging / label,
             series,
@@ -225,6 +244,18 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
             n_thresholds=cfg.tb.pr_thresholds,
         )
     replace_folder(staging, logdir / COMPARE)
+
+
+def _learning_points(rows: list[ResultRow], pair: str, label: str) -> tuple:
+    """(training places, recall@1, AUC-PR) of a label's selected rows of a learning curve,
+    the mean over seeds."""
+    by_places: dict[int, list[ResultRow]] = {}
+    for r in selected_rows(rows):
+        if r.season_pair == pair and label_of(r) == label and training_places(r) is not None:
+            by_places.setdefault(training_places(r), []).append(r)
+    return tuple(
+        (p, _mean(v, "recall_at_1"), _mean(v, "auc_pr")) for p, v in sorted(by_places.items())
+    )
 
 
 def _step(row: ResultRow) -> int | None:
@@ -336,6 +367,7 @@ def markdown_table(
     rows: list[ResultRow],
     differences: dict[str, Difference] | None = None,
     baseline: str | None = None,
+    same_models: list[list[ResultRow]] = (),
 ) -> str:
     """results.md: the validation-selected setting per method (recall@1 and AUC-PR with
     their 95% intervals, what decided the choice, and the paired difference to the
@@ -370,8 +402,11 @@ def markdown_table(
         "",
         *_headline(rows, differences or {}, shown, preferred, base),
         *_best_objective_note(rows, preferred),
+        *_kept_at_start(selected_rows(rows)),
+        *_same_models(same_models),
         "",
         *_seed_spread(rows, differences or {}, base),
+        *_learning_curves(rows),
         "## Best setting per method, chosen on the test queries (optimistic)",
         "",
         *_cell_table(best_rows(rows), shown),
@@ -448,7 +483,9 @@ def _headline(
             [
                 r.season_pair,
                 r.method,
-                r.objective + (" best" if r.run in preferred else ""),
+                r.objective
+                + (" best" if r.run in preferred else "")
+                + (" (its start)" if r.kept_epoch == 0 else ""),
                 *(optional[c] for c in ("setting",) if c in shown),
                 str(r.removed_pcs),
                 *(optional[c] for c in ("ds", "seed") if c in shown),
@@ -525,6 +562,101 @@ def _seed_spread(rows: list[ResultRow], differences: dict[str, Difference], base
         *_markdown(head, body),
         "",
     ]
+
+
+def _learning_curves(rows: list[ResultRow]) -> list[str]:
+    """results.md's learning curves (``split.train_places``): per pair, method and
+    objective, recall@1 with its interval at each value of training places (single images,
+    the validation-selected setting at each; several seeds: the mean, then the seeds'
+    range)."""
+    shortest = min((r.ds for r in rows), default=1)
+    best = [r for r in selected_rows(rows) if r.ds == shortest and training_places(r) is not None]
+    if not best:
+        return []
+    places = sorted({training_places(r) for r in best})
+    table: dict[tuple, dict[int, list[ResultRow]]] = {}
+    for r in _in_order(best):
+        key = (r.season_pair, r.method, r.objective, plain_setting(r))
+        table.setdefault(key, {}).setdefault(training_places(r), []).append(r)
+
+    def cell(mine: list[ResultRow] | None) -> str:
+        if not mine:
+            return ""
+        if len(mine) == 1:
+            r = mine[0]
+            return f"{r.recall_at_1:.3f} {_ci(r.recall_at_1_ci_low, r.recall_at_1_ci_high)}"
+        values = [r.recall_at_1 for r in mine]
+        return f"{float(np.mean(values)):.3f} ({_spread(values)})"
+
+    body = [[*key[:3], key[3], *(cell(v.get(p)) for p in places)] for key, v in table.items()]
+    head = ("season_pair", "method", "objective", "setting", *(f"{p} places" for p in places))
+    return [
+        "## Learning curves",
+        "",
+        "recall@1 [95% CI] of each method fitted on that many of each season's training "
+        "places (split.train_places, spread evenly over the training stretch; the "
+        "validation and test places are the same for every value, so is the protocol), at "
+        "the setting the validation places choose for each. Every value is rows of its own, "
+        "never chosen among: more data is not a choice. figures/learning_curves.png draws "
+        "them.",
+        "",
+        *_markdown(head, body),
+        "",
+    ]
+
+
+def _kept_at_start(selected: list[ResultRow]) -> list[str]:
+    """A line naming the trained rows whose kept model is their start (marked "its start"
+    above): no epoch of training beat it on the validation places."""
+    start = [r for r in _in_order(selected) if r.kept_epoch == 0]
+    if not start:
+        return []
+    named = "; ".join(
+        dict.fromkeys(
+            f"{r.season_pair} {r.method} {r.objective}".rstrip()
+            + (f" {r.setting}" if r.setting else "")
+            + f" ({r.start}, {r.epochs_trained} epoch{'' if r.epochs_trained == 1 else 's'} "
+            "trained)"
+            for r in start
+        )
+    )
+    return [
+        "",
+        "Kept at their start, untouched by training (no epoch beat it on the validation "
+        f"places; marked its start): {named}.",
+    ]
+
+
+def _same_models(groups: list[list[ResultRow]]) -> list[str]:
+    """A line per group of selected rows that are one model: identical scores and matches
+    on every query."""
+    lines = []
+    for group in groups:
+        named = ", ".join(f"{r.method} {r.objective}".rstrip() for r in group)
+        at_start = all(r.kept_epoch == 0 for r in group) and len({r.start for r in group}) == 1
+        why = f", all kept at their start ({group[0].start})" if at_start else ""
+        lines.append(
+            f"{group[0].season_pair}: {named} score every query identically: one model{why}."
+        )
+    return ["", *lines] if lines else []
+
+
+def same_models(rows: list[ResultRow], curve: Curves) -> list[list[ResultRow]]:
+    """Groups of selected rows (a pair, ds and seed; other methods or objectives) whose
+    every query's best score, correctness and match are identical: the same model under
+    two names (the auto-encoders kept at one linear start)."""
+    groups: dict[tuple, list[ResultRow]] = {}
+    for r in _in_order(selected_rows(rows)):
+        arrays = curve(r.run)
+        key = (
+            r.season_pair,
+            r.ds,
+            r.seed,
+            arrays["best_scores"].tobytes(),
+            arrays["best_correct"].tobytes(),
+        )
+        groups.setdefault(key, []).append(r)
+    return [g for g in groups.values() if len({(r.method, r.objective) for r in g}) > 1]
 
 
 def _best_objective_note(rows: list[ResultRow], preferred: set[str]) -> list[str]:

@@ -85,6 +85,7 @@ class Fit(NamedTuple):
     folder: str  # its fitted state's folder under the pair's, and its training runs' name
     seed: int  # its key's: one of ``seeds``, or ``seed`` for a method that draws none
     served: tuple[Served, ...]
+    train_places: int | None = None  # fitted on this many training places (None: all)
 
 
 def group_of(info: MethodInfo) -> str:
@@ -287,20 +288,24 @@ def _served_names(method: Method, settings: Any) -> set[str]:
 def fits(r: Resolved, cfg: SweepConfig) -> list[Fit]:
     """The fits of one method in each pair, in the order they run."""
     seeds = cfg.fit_seeds if r.method.random else (cfg.seed,)
+    places = cfg.split.train_places or (None,)
     groups: dict[str, list[Combination]] = {}
     for c in r.combinations:  # combinations that differ only in served settings share a fit
         served = _served_names(r.method, c.settings)
         key = repr(sorted((n, v) for n, v in c.values.items() if n not in served))
         groups.setdefault(key, []).append(c)
     out = []
-    for group in groups.values():
-        for objective in _rows(r, group[0]):
-            for seed in seeds:
-                out.append(_fit(r, group, objective, seed, cfg.seed))
+    for p in places:  # each a learning curve's point: rows of their own
+        for group in groups.values():
+            if p is not None:  # fitted on p training places: a setting of every cell
+                group = [c._replace(swept=(*c.swept, ("train_places", p))) for c in group]
+            for objective in _rows(r, group[0]):
+                for seed in seeds:
+                    out.append(_fit(r, group, objective, seed, cfg.seed, p))
     return out
 
 
-def _fit(r: Resolved, group: list[Combination], objective: str, seed, data_seed) -> Fit:
+def _fit(r: Resolved, group: list[Combination], objective: str, seed, data_seed, places) -> Fit:
     first = group[0]
     served_names = _served_names(r.method, first.settings)
     rows_name = _rows_setting(r.method, first.settings)
@@ -326,6 +331,7 @@ def _fit(r: Resolved, group: list[Combination], objective: str, seed, data_seed)
         folder=cell_name(r.name, objective, fit_swept, seed_named),
         seed=seed,
         served=served,
+        train_places=places,
     )
 
 

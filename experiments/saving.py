@@ -102,6 +102,8 @@ def describe_encoders(root: Path, rows: list[ResultRow]) -> list[dict]:
                     "setting": chosen.setting,
                     "swept": settings_of(chosen),
                     "cell": settings_label(tuple(settings_of(chosen).items())),
+                    "kept_epoch": chosen.kept_epoch,
+                    "start": chosen.start,
                     "val_recall_at_1": chosen.val_recall_at_1,
                     "val_recall_at_1_by_served": {
                         settings_label(tuple(c["served"].items())): r.val_recall_at_1

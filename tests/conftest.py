@@ -1,5 +1,6 @@
 import contextlib
 import fcntl
+import importlib
 import io
 import json
 import os
@@ -10,7 +11,7 @@ import subprocess
 import sys
 import tempfile
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -135,16 +136,32 @@ def run_cli(*args: str, env: dict | None = None, timeout: float = PROCESS_TIMEOU
     )
 
 
-def run_here(*args: str) -> subprocess.CompletedProcess:
+def run_here(*args: str, path: Iterable[str | Path] = ()) -> subprocess.CompletedProcess:
     """``python -m experiments.sweep ARGS`` run by its ``main`` in this process, its output
-    captured: for refusals, where what is tested is the line and the files left alone, not
-    the command line's start (a fresh interpreter costs each case JAX's import). Models are
-    checkpointed next to the logdir, as ``run_cli`` does."""
+    captured: wherever what is tested is what the sweep prints, writes or refuses, not the
+    command line's start, a process's signals or its exit (a fresh interpreter costs each
+    run JAX's import, and every program it runs is compiled or read from the cache again).
+    Models are checkpointed next to the logdir, as ``run_cli`` does.
+
+    ``path``: folders put in front of ``sys.path`` for the run, as ``PYTHONPATH`` would be
+    for a fresh interpreter (a user's method modules); the modules imported from them are
+    forgotten afterwards, so the next run imports them afresh, as a new process would.
+
+    A sweep here holds its logdir's lock, and the checkpoint folder of every model it
+    trained or restored, until the test runner exits (``lock_folder``: the kernel drops a
+    lock when its process ends): a later sweep in another process (a test's subprocess,
+    another pytest-xdist worker) that needs one of them must use a copy."""
     from experiments import sweep
 
     logdirs = [a.split("=", 1)[1] for a in args if a.startswith("logdir=")]
     if logdirs and not any(a.startswith("train.checkpoint_dir=") for a in args):
         args = (*args, f"train.checkpoint_dir={Path(logdirs[-1]).parent / 'checkpoints'}")
+    folders = [str(Path(p).resolve()) for p in path]
+    saved_path, dont_write_bytecode = list(sys.path), sys.dont_write_bytecode
+    _forget_modules(folders)  # also another folder's module of the same name
+    sys.path[:0] = folders
+    sys.dont_write_bytecode = True  # a module rewritten under the same name is read again
+    importlib.invalidate_caches()
     out, err = io.StringIO(), io.StringIO()
     handler = signal.getsignal(signal.SIGTERM)
     try:
@@ -152,9 +169,23 @@ def run_here(*args: str) -> subprocess.CompletedProcess:
             code = sweep.main(list(args))
     finally:
         signal.signal(signal.SIGTERM, handler)
+        sys.path[:], sys.dont_write_bytecode = saved_path, dont_write_bytecode
+        _forget_modules(folders)
     return subprocess.CompletedProcess(
         ["experiments.sweep", *args], code, out.getvalue(), err.getvalue()
     )
+
+
+def _forget_modules(folders: list[str]) -> None:
+    """Drop from ``sys.modules`` every module imported from ``folders`` and every module
+    named like one of theirs (``name.py`` or a package ``name/``)."""
+    if not folders:
+        return
+    names = {p.stem for f in folders for p in Path(f).iterdir() if p.suffix == ".py" or p.is_dir()}
+    for name, module in list(sys.modules.items()):
+        file = getattr(module, "__file__", None) or ""
+        if name.split(".")[0] in names or any(file.startswith(f + os.sep) for f in folders):
+            del sys.modules[name]
 
 
 def assert_one_line_error(
@@ -244,13 +275,13 @@ def shared_folder(tmp_path_factory, name: str, make: Callable[[Path], None]) -> 
     return folder
 
 
-def shared_sweep(tmp_path_factory, name: str, *args: str, env: dict | None = None):
-    """``(logdir, the finished process)`` of ``run_cli(*args)`` (``env``: added to its
-    environment) run once per session into a ``shared_folder`` (read-only for every
-    test)."""
+def shared_sweep(tmp_path_factory, name: str, *args: str, path: Iterable[str | Path] = ()):
+    """``(logdir, the finished process)`` of ``run_here(*args, path=path)`` run once per
+    session into a ``shared_folder`` (read-only for every test; the worker that ran it
+    holds its locks, so a test that resumes or retrains it works on a copy)."""
 
     def sweep(folder: Path) -> None:
-        proc = run_cli(*args, f"logdir={folder / 'runs'}", env=env)
+        proc = run_here(*args, f"logdir={folder / 'runs'}", path=path)
         assert proc.returncode == 0, proc.stderr
         record = [proc.args, proc.returncode, proc.stdout, proc.stderr]
         (folder / "process.json").write_text(json.dumps(record))

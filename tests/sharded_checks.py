@@ -1,13 +1,18 @@
 """Compare every sharded stage with its single-device run; print the differences as JSON.
 
-    XLA_FLAGS=--xla_force_host_platform_device_count=8 python tests/sharded_checks.py
+    XLA_FLAGS=--xla_force_host_platform_device_count=8 python tests/sharded_checks.py [FOLDER]
 
 A helper of tests/test_sharding.py: the virtual devices must exist before JAX starts, so
-the checks run in their own process.
+the checks run in their own process. With FOLDER, the sweep's ``main`` is also run in this
+process with ``train.batch_size=12`` and ``logdir=FOLDER/runs`` (a batch that does not split
+over the eight devices), and its exit code, stdout and stderr are reported as ``refusal``.
 """
 
+import contextlib
+import io
 import json
 import re
+import sys
 
 import jax
 import numpy as np
@@ -113,7 +118,20 @@ def main() -> None:
     hlo = step.lower(params, opt_state, batch, jax.random.key(1)).compile().as_text()
     out["step_batch_shapes"] = sorted({int(b) for b in re.findall(r"f32\[(\d+),32,64\]", hlo)})
     out["step_all_reduces"] = hlo.count("all-reduce(")
+    if len(sys.argv) > 1:
+        out["refusal"] = refusal(sys.argv[1])
     print(json.dumps(out))
+
+
+def refusal(folder: str) -> list:
+    """``python -m experiments.sweep train.batch_size=12 logdir=FOLDER/runs`` on this
+    process's devices: [exit code, stdout, stderr]."""
+    from experiments import sweep
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = sweep.main(["train.batch_size=12", f"logdir={folder}/runs"])
+    return [code, out.getvalue(), err.getvalue()]
 
 
 if __name__ == "__main__":

@@ -219,3 +219,29 @@ def test_max_shift_floors_and_rejects_bad_fractions():
     assert max_shift(0.0, 64) == 0
     with pytest.raises(ValueError):
         max_shift(-0.1, 64)
+
+
+def test_a_change_of_conditions_stays_in_range_follows_its_key_and_keeps_the_place():
+    """Two views of an image (augment_contrastive's positive pair): within [0, 1], the same
+    for the same key under jit and eagerly, other for another key, and nearer their own
+    image than another image is (the place kept: small shifts, no flip)."""
+    from vpr_jax.data.augment import condition_change, condition_views
+
+    rng = np.random.default_rng(3)
+    # smooth random images, each its own: a random walk down and across
+    smooth = np.cumsum(np.cumsum(rng.standard_normal((4, 32, 64)), axis=1), axis=2)
+    low, high = smooth.min(axis=(1, 2), keepdims=True), smooth.max(axis=(1, 2), keepdims=True)
+    images = ((smooth - low) / (high - low)).astype(np.float32)
+    key = jax.random.key(5)
+    views = np.asarray(condition_views(key, images))
+    assert views.shape == (4, 2, 32, 64) and views.min() >= 0.0 and views.max() <= 1.0
+    with jax.disable_jit():
+        eager = np.asarray(condition_change(key, images[0]))
+    np.testing.assert_allclose(
+        np.asarray(jax.jit(condition_change)(key, images[0])), eager, atol=1e-6
+    )
+    assert not np.allclose(views[:, 0], views[:, 1])  # two draws per image
+    for i in range(4):
+        own = np.corrcoef(views[i, 0].ravel(), images[i].ravel())[0, 1]
+        other = np.corrcoef(views[i, 0].ravel(), images[(i + 1) % 4].ravel())[0, 1]
+        assert own > other

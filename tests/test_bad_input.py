@@ -96,7 +96,7 @@ def _poisoned_cache(value):
         args = _videos(root)
         # A first run decodes and caches the videos, then stops at the split (2 seconds of
         # video are too few places): the cache is real, written by the reader.
-        first = run_cli(*args, f"logdir={root.parent / 'first'}")
+        first = run_here(*args, f"logdir={root.parent / 'first'}")
         assert_one_line_error(first, "split")
         cache = next((root.parent / "cache").glob("summer*.npz"))
         with np.load(cache) as z:
@@ -299,7 +299,7 @@ def test_finished_logdir_is_untouched_by_bad_reruns(small_sweep, tmp_path):
     shutil.copytree(finished, logdir)
     before = _snapshot(logdir)
     assert_one_line_error(
-        run_cli(*SMALL, "tolerance=3", f"logdir={logdir}"), "different configuration", "tolerance"
+        run_here(*SMALL, "tolerance=3", f"logdir={logdir}"), "different configuration", "tolerance"
     )
-    assert_one_line_error(run_cli(*SMALL, "removed_pcs=[0,900]", f"logdir={logdir}"), "900")
+    assert_one_line_error(run_here(*SMALL, "removed_pcs=[0,900]", f"logdir={logdir}"), "900")
     assert _snapshot(logdir) == before

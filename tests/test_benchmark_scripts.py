@@ -35,7 +35,7 @@ def line_matching(out: str, pattern: str) -> str:
 
 def test_run_all():
     """Every row but the scaling exponents: those are scaling.py's ``measure`` at the same
-    tiny lengths (test_scaling), four more fresh processes this test leaves out."""
+    tiny lengths (test_scaling), three more fresh processes this test leaves out."""
     out = run_script("run_all.py", "--tiny", "--skip-scaling")
     header = line_matching(out, r"^what\s+ours\s+peer, same run\s+ratio\s+goal\s+met$")
     table = out[out.index(header) :]

@@ -25,7 +25,7 @@ from tests.conftest import (
     assert_one_line_error,
     env_with_repo,
     read_run,
-    run_cli,
+    run_here,
     run_process,
     shared_folder,
 )
@@ -73,7 +73,7 @@ def _bench(folder: Path) -> None:
     (folder / "truth.json").write_text(
         json.dumps({"refs": refs, "queries": queries, "truth": truth})
     )
-    sweep = run_cli(
+    sweep = run_here(  # in this process; the export below runs as a user runs it
         "data.source=vpr_bench",
         f"data.root={root}",
         "methods=[raw,pca,ica,fae]",
@@ -296,15 +296,19 @@ def test_outside_descriptors_score_the_recall_numpy_computes(bench):
     assert rows["centred"]["fit_seconds"] == "nan"
 
 
-def test_every_setting_exports_under_its_run_name(bench, tmp_path):
+def test_every_setting_exports_under_its_run_name(bench, tmp_path, capsys):
+    """In this process (the bench fixture runs the export in a fresh interpreter)."""
+    from experiments import export
+
     out = tmp_path / "all"
-    proc = export_cli(str(bench / "runs"), f"out={out}", "all_settings=true", "top_k=3")
+    argv = [str(bench / "runs"), f"out={out}", "all_settings=true"]
+    proc = in_process(export.main, [*argv, "top_k=3"], capsys)
     assert proc.returncode == 0, proc.stderr
     names = {p.name for p in (out / "ref-query").iterdir()}
     assert {"pca_k000", "pca_k050", "ica_k050", "raw", "pca_k005_ds04"} <= names
     _, lists = read_pairs(out / "ref-query" / "pca_k050")
     assert {len(m) for m in lists} == {3}
-    again = export_cli(str(bench / "runs"), f"out={out}", "all_settings=true")
+    again = in_process(export.main, argv, capsys)
     assert_one_line_error(again, f"out={out} is not empty", "overwrite=true")
     assert {len(m) for m in read_pairs(out / "ref-query" / "pca_k050")[1]} == {3}  # kept
 

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import run_cli, run_here
+from tests.conftest import run_here
 from tests.inputs import write_release
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
@@ -38,7 +38,9 @@ def hostile_root(tmp_path_factory):
 
 
 def _run(root, logdir, *args):
-    proc = run_cli(
+    """The sweep's ``main`` in this process (what is tested is what it prints, logs and
+    scores; the command line's start is test_bad_input.py's)."""
+    proc = run_here(
         "data.source=nordland_images",
         f"data.root={root}",
         *SPLIT,

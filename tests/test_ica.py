@@ -11,6 +11,7 @@ from sklearn.decomposition import FastICA
 
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import ica, pca
+from vpr_jax.evaluation.matching import cosine_similarity
 
 
 def _sources(kind: str, n: int, c: int, rng) -> np.ndarray:
@@ -254,7 +255,9 @@ def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     s, f = route.images["summer"], route.images["fall"]
     train, query, db = np.concatenate([s[:200], f[:200]]), f[250:], s[250:]
     fit = PCAFit(state=pca.fit_pca(train, 16), seconds=0.0, asked=16)
-    state = pca_method.method.fit(train, None, None, pca_fit=fit, solver="auto", output="pixels")
+    state = pca_method.method.fit(
+        train, None, None, pca_fit=fit, solver="auto", output="pixels", whiten=0
+    )
     np.testing.assert_array_equal(
         pca_method.method.encode(state, query, removed_pcs=4),
         pca.encode(fit.state, query, 4, "pixels"),
@@ -276,3 +279,27 @@ def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     np.testing.assert_array_equal(top1(mine), top1(direct))
     report = ica_method.method.report(mine, {**settings, "removed_pcs": 4, "max_iter": 200})
     assert report.basis.shape == (12, 32 * 64) and report.n_iter == int(direct.n_iter)
+
+
+def test_ica_ranks_exactly_as_pca_whitened_to_its_components():
+    """FastICA's unmixing is orthogonal on whitened data, a rotation: under cosine, ICA of c
+    components after k removed ranks every database image exactly as PCA whitened to the
+    same c components does (``pca.whiten=c``), whatever its seed."""
+    from vpr_jax.methods import pca as pca_method
+
+    rng = np.random.default_rng(0)
+    sources = rng.laplace(size=(300, 6)) @ rng.normal(size=(6, 128))
+    x = (sources + 0.1 * rng.normal(size=(300, 128))).astype(np.float32)
+    fit = pca.fit_pca(x)
+    queries, db = x[:40] + 0.05, x[40:200]
+    for k, c, seed in ((0, 5, 1), (2, 4, 7)):
+        state = ica.fit_ica(x, jax.random.key(seed), n_components=c, removed_pcs=k, pca_state=fit)
+        with_ica = cosine_similarity(ica.encode(state, queries), ica.encode(state, db))
+        whitened = pca_method.Whitened(fit, jnp.int32(c))
+        with_pca = cosine_similarity(
+            pca_method.encode(whitened, queries, k), pca_method.encode(whitened, db, k)
+        )
+        np.testing.assert_allclose(with_ica, with_pca, atol=1e-5)
+        np.testing.assert_array_equal(
+            np.argmax(np.asarray(with_ica), axis=1), np.argmax(np.asarray(with_pca), axis=1)
+        )

@@ -199,3 +199,30 @@ def test_the_real_preset_sets_no_data_keys_and_its_logdir_names_the_source():
             check(named, unaligned._replace(asked=frozenset({"objective"})), print)
     assert parse_config(["preset=real", "logdir=mine"]).logdir == "mine"
     assert parse_config(["train.augment=false"]).train.augment is False
+
+
+def test_augment_contrastive_is_infonce_of_two_changes_of_conditions():
+    """The loss of augment_contrastive is numpy's InfoNCE of the codes of each image's two
+    views (condition_views of the key), every other image of the batch a wrong place."""
+    from flax import nnx
+
+    from vpr_jax.data.augment import condition_views
+    from vpr_jax.encoders import autoencoders as ae
+    from vpr_jax.encoders import objectives
+
+    graphdef, params = ae.build(ae.FAESpec(hidden=16), jax.random.key(0))
+    model = nnx.merge(graphdef, params)
+    images = np.random.default_rng(0).random((6, 32, 64)).astype(np.float32)
+    key = jax.random.key(9)
+    got = np.asarray(
+        objectives.per_example_loss("augment_contrastive", model, images, 0.1, key=key)
+    )
+    views = np.asarray(condition_views(key, images))
+    codes = [np.asarray(model.encode(views[:, j]), np.float64) for j in (0, 1)]
+    a, b = (c / np.linalg.norm(c, axis=1, keepdims=True) for c in codes)
+    logits = a @ b.T / 0.1
+    rows = np.log(np.exp(logits).sum(axis=1)) - np.diag(logits)
+    cols = np.log(np.exp(logits).sum(axis=0)) - np.diag(logits)
+    np.testing.assert_allclose(got, (rows + cols) / 2, rtol=1e-4, atol=1e-5)
+    assert objectives.examples_per_image("augment_contrastive") == 2
+    assert "augment_contrastive" not in objectives.PAIRED  # no aligned places needed

@@ -22,7 +22,6 @@ from tests.conftest import (
     assert_one_line_error,
     env_with_repo,
     read_run,
-    run_cli,
     run_here,
     run_process,
     shared_folder,
@@ -98,7 +97,7 @@ def own(tmp_path_factory):
         "preprocess=patchnorm",
         f"train.checkpoint_dir={folder / 'checkpoints'}",
     ]
-    logdir, _ = shared_sweep(tmp_path_factory, "own_method_sweep", *args, env=env)
+    logdir, _ = shared_sweep(tmp_path_factory, "own_method_sweep", *args, path=[folder / "mine"])
     return logdir, [*args, f"logdir={logdir}"], env, record, folder / "mine"
 
 
@@ -150,21 +149,22 @@ def test_a_method_of_your_own_is_saved_and_a_fresh_process_loads_it(own):
         assert check["score_gap"] < 1e-5 and check["recall_at_1"] == check["sweep_recall_at_1"]
 
 
-def test_a_rerun_resumes_and_other_settings_are_another_configuration(own, monkeypatch, tmp_path):
+def test_a_rerun_resumes_and_other_settings_are_another_configuration(own, tmp_path):
     logdir, args, _, _, mine = own
-    monkeypatch.syspath_prepend(str(mine))
     shutil.copytree(logdir, tmp_path / "runs")  # the shared sweep stays as it is
     shutil.copytree(logdir.parent.parent / "own_method" / "checkpoints", tmp_path / "checkpoints")
     moved = {"logdir": tmp_path / "runs", "train.checkpoint_dir": tmp_path / "checkpoints"}
     args = [f"{k}={moved[k]}" if k in moved else a for a in args for k in [a.split("=")[0]]]
-    again = run_here(*args)
+    again = run_here(*args, path=[mine])
     assert "resuming: 2 of 2 cells" in again.stdout and again.returncode == 0
     other = [a if "scale=" not in a else "plugin.centred_pixels.scale=2" for a in args]
-    assert_one_line_error(run_here(*other), "plugin.centred_pixels", "new logdir")
+    assert_one_line_error(run_here(*other, path=[mine]), "plugin.centred_pixels", "new logdir")
 
 
 def test_a_method_that_fails_is_one_line_and_the_fixed_method_resumes(tmp_path):
-    env = _module(tmp_path / "mine", "my_methods", BROKEN_FIT)
+    """In this process, the module's folder on sys.path as PYTHONPATH would put it; the
+    broken module is forgotten after its run, so the fixed one is imported afresh."""
+    _module(tmp_path / "mine", "my_methods", BROKEN_FIT)
     logdir, record = tmp_path / "runs", tmp_path / "fit.jsonl"
     args = [
         *SMALL_ROUTE,
@@ -173,13 +173,16 @@ def test_a_method_that_fails_is_one_line_and_the_fixed_method_resumes(tmp_path):
         f"logdir={logdir}",
     ]
     line = assert_one_line_error(
-        run_cli(*args, env=env), "method centred_pixels", "fit raised RuntimeError", "sweep.log"
+        run_here(*args, path=[tmp_path / "mine"]),
+        "method centred_pixels",
+        "fit raised RuntimeError",
+        "sweep.log",
     )
     assert [r.method for r in read_results(logdir / "results.csv")] == ["raw"]
     log = (logdir / "sweep.log").read_text()
     assert line in log and 'raise RuntimeError("deliberately broken")' in log  # its traceback
     _module(tmp_path / "mine", "my_methods", CENTRED_PIXELS)
-    fixed = run_cli(*args, env=env)
+    fixed = run_here(*args, path=[tmp_path / "mine"])
     assert fixed.returncode == 0, fixed.stderr
     assert "resuming: 1 of 2 cells" in fixed.stdout
     assert [r.method for r in read_results(logdir / "results.csv")] == ["raw", "centred_pixels"]
@@ -285,9 +288,8 @@ class every:
 """
 
 
-def test_a_method_using_every_declaration_runs_as_declared(tmp_path, monkeypatch):
+def test_a_method_using_every_declaration_runs_as_declared(tmp_path):
     _module(tmp_path / "mine", "every_decl", EVERY_DECLARATION)
-    monkeypatch.syspath_prepend(str(tmp_path / "mine"))
     logdir = tmp_path / "runs"
     proc = run_here(
         *SMALL_ROUTE,
@@ -296,6 +298,7 @@ def test_a_method_using_every_declaration_runs_as_declared(tmp_path, monkeypatch
         "plugin.every.n=400",
         "plugin.every.skip=[0,2,500]",
         f"logdir={logdir}",
+        path=[tmp_path / "mine"],
     )
     assert proc.returncode == 0, proc.stderr
     assert "note: every: n=400 capped to 244" in proc.stdout  # 249 held, less removed 5

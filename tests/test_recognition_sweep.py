@@ -1,6 +1,6 @@
 """The recognition options end to end on the built-in route: residual input, the linear
-start, the contrastive objective and ``train.augment=auto`` train and checkpoint in a
-subprocess sweep, and the epoch and model kept are the ones the validation places' recall
+start, the contrastive objective and ``train.augment=auto`` train and checkpoint in one
+sweep, and the epoch and model kept are the ones the validation places' recall
 chooses, the same recall the sweep reports for the cell. (Resuming and restoring such
 models: tests/test_recognition_training.py and the sweep's rerun tests.)"""
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import read_run, run_cli
+from tests.conftest import read_run, shared_sweep
 from vpr_jax.encoders import checkpoints
 from vpr_jax.encoders.train import SELECT_RECALL
 from vpr_jax.outputs.results import read_results
@@ -39,10 +39,8 @@ MODELS = {"fae": "fae_contrastive", "cae": "cae_cross_season"}
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
-    logdir = tmp_path_factory.mktemp("recognition") / "runs"
-    proc = run_cli(*ARGS, f"logdir={logdir}")
-    assert proc.returncode == 0, proc.stderr
-    return logdir, proc
+    """(logdir, the finished sweep), run once per session (whichever worker asks first)."""
+    return shared_sweep(tmp_path_factory, "recognition_sweep", *ARGS)
 
 
 def _recall_curve(run_dir) -> list[float]:

@@ -18,6 +18,7 @@ from tests.conftest import (
     private_xla_cache,
     read_run,
     run_cli,
+    run_here,
     run_process,
     started,
 )
@@ -80,7 +81,9 @@ def _signal_during(line_part: str, args: list[str], tmp_path: Path, sig=signal.S
 
 
 def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp_path):
-    whole = run_cli(*KILLABLE, f"logdir={tmp_path / 'whole' / 'runs'}")
+    """The killed sweep is a process of its own; the uninterrupted one and the resume run in
+    this process (what is compared is the files they leave)."""
+    whole = run_here(*KILLABLE, f"logdir={tmp_path / 'whole' / 'runs'}")
     assert whole.returncode == 0, whole.stderr
 
     logdir, ck = tmp_path / "cut" / "runs", tmp_path / "cut" / "checkpoints"
@@ -91,7 +94,7 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
     rows_at_kill = read_results(logdir / "results.csv")
     assert 0 < len(rows_at_kill) < 4
 
-    again = run_cli(*args)
+    again = run_here(*args)
     assert again.returncode == 0, again.stderr
     assert "resuming: 3 of 4 cells" in again.stdout
     # The kill may land before or during epoch 3's save: training resumes after 2 or 3.
@@ -123,7 +126,7 @@ def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):
 
     command = shlex.split(line.split("resume with: ", 1)[1])
     assert command[:3] == ["python", "-m", "experiments.sweep"]
-    again = run_cli(*command[3:])
+    again = run_here(*command[3:])  # its arguments, run in this process
     assert again.returncode == 0, again.stderr
     assert "resuming: 1 of 4 cells" in again.stdout
     assert "summer-fall fae_cross_season: resuming after epoch" in again.stdout
@@ -148,7 +151,7 @@ def test_the_same_seed_gives_the_same_table(small_sweep, tmp_path):
     """One pair of the small sweep again, every method: the same cells to the last digit
     (a pair's fits depend on the seed and its own images only)."""
     first, _ = small_sweep
-    proc = run_cli(*SMALL, "season_pairs=spring-fall", f"logdir={tmp_path / 'runs'}")
+    proc = run_here(*SMALL, "season_pairs=spring-fall", f"logdir={tmp_path / 'runs'}")
     assert proc.returncode == 0, proc.stderr
     again = _cells(read_results(tmp_path / "runs" / "results.csv"))
     whole = _cells(read_results(first / "results.csv"))
@@ -157,7 +160,7 @@ def test_the_same_seed_gives_the_same_table(small_sweep, tmp_path):
 
 def test_another_seed_gives_another_route_and_other_initial_weights(small_sweep, tmp_path):
     first, _ = small_sweep
-    proc = run_cli(
+    proc = run_here(
         *SMALL,
         "seed=1",
         "season_pairs=summer-fall",
@@ -185,18 +188,21 @@ HOLD_LOCK = (
 def test_one_sweep_per_logdir_and_the_lock_dies_with_its_holder(tmp_path):
     logdir = tmp_path / "runs"
     args = [*SMALL, "methods=[raw]", "season_pairs=summer-fall", f"logdir={logdir}"]
+    # A process of its own: a sweep in this process would hold the lock until the test
+    # runner exits (the kernel drops it when its holder ends), and the holder below could
+    # not take it. The refused and the third sweep run here.
     assert run_cli(*args).returncode == 0
     assert not (logdir / ".incomplete").exists()  # a finished sweep leaves nothing behind
     before = (logdir / "results.csv").read_bytes()
     # Leaving the block SIGKILLs the holder.
     with started([sys.executable, "-c", HOLD_LOCK, str(logdir)], stdout=subprocess.PIPE) as holder:
         assert holder.stdout.readline().strip() == "held"
-        second = run_cli(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
+        second = run_here(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
         words = ("in use by another sweep", f"pid {holder.pid}", "another logdir=PATH")
         assert_one_line_error(second, *words)
         assert (logdir / "results.csv").read_bytes() == before  # nothing touched
     # SIGKILL leaves no stale lock: the same command now runs and adds its cells once.
-    third = run_cli(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
+    third = run_here(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
     assert third.returncode == 0, third.stderr
     rows = read_results(logdir / "results.csv")
     assert sorted((r.method, r.removed_pcs) for r in rows) == [("pca", 0), ("pca", 5), ("raw", 0)]
@@ -218,10 +224,10 @@ def test_logdirs_of_one_name_cannot_train_into_the_same_checkpoint_folder(tmp_pa
     model = checkpoints / "quick" / "summer-fall" / "fae" / "training"
     with started([sys.executable, "-c", HOLD_LOCK, str(model)], stdout=subprocess.PIPE) as holder:
         assert holder.stdout.readline().strip() == "held"
-        proc = run_cli(*args, f"logdir={tmp_path / 'b' / 'quick'}")
+        proc = run_here(*args, f"logdir={tmp_path / 'b' / 'quick'}")
         words = (f"checkpoint folder {model} is in use by another sweep", f"pid {holder.pid}")
         assert_one_line_error(proc, *words)
-    assert run_cli(*args, f"logdir={tmp_path / 'b' / 'quick'}").returncode == 0
+    assert run_here(*args, f"logdir={tmp_path / 'b' / 'quick'}").returncode == 0
 
 
 def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
@@ -236,7 +242,7 @@ def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
     )
     saved = read_results(logdir / "results.csv")
     assert 1 <= len(saved) < 3 * 4 and f"{len(saved)} finished cell(s) are saved" in line
-    again = run_cli(*args)
+    again = run_here(*args)  # the rerun, in this process
     assert again.returncode == 0, again.stderr
     rows = read_results(logdir / "results.csv")
     assert (
@@ -282,7 +288,7 @@ def test_a_checkpoint_that_cannot_be_written_is_one_line_and_the_rerun_completes
     )
     saved = read_results(logdir / "results.csv")
     assert [r.method for r in saved] == ["raw"] and "1 finished cell(s)" in line
-    again = run_cli(*args)
+    again = run_here(*args)  # the rerun, in this process
     assert again.returncode == 0, again.stderr
     rows = read_results(logdir / "results.csv")
     assert sorted(r.method for r in rows) == ["fae", "raw"]
@@ -309,6 +315,7 @@ def test_a_full_disk_is_one_line_and_the_same_command_completes_once_space_is_fr
         assert f"{len(saved)} finished cell(s) are saved" in line
         remount = run_process(["mount", "-o", "remount,size=20m", str(mount)], timeout=60)
         assert remount.returncode == 0, remount.stderr
+        # A process of its own: one in this process would keep files on the mount open.
         again = run_cli(*args)
         assert again.returncode == 0, again.stderr
         rows = read_results(mount / "runs" / "results.csv")

@@ -23,7 +23,9 @@ from tests.conftest import (
     env_with_repo,
     numpy_cosine,
     run_cli,
+    run_here,
     run_process,
+    shared_folder,
     started,
 )
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
@@ -39,13 +41,22 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def checks():
+def _run_checks(folder: Path) -> None:
     proc = run_process(
-        [sys.executable, str(REPO / "tests" / "sharded_checks.py")], env=env_with_repo(**EIGHT)
+        [sys.executable, str(REPO / "tests" / "sharded_checks.py"), str(folder)],
+        env=env_with_repo(**EIGHT),
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    (folder / "checks.json").write_text(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def checks(tmp_path_factory):
+    """The checks of sharded_checks.py on eight devices, and the sweep's answer there to a
+    batch that does not split over them (its logdir in ``folder``): run once per session,
+    whichever worker asks first."""
+    folder = shared_folder(tmp_path_factory, "sharded_checks", _run_checks)
+    return {**json.loads((folder / "checks.json").read_text()), "folder": folder}
 
 
 def test_the_mesh_spans_eight_devices(checks):
@@ -170,7 +181,7 @@ TINY = [
 
 
 def test_a_sweep_over_two_processes_equals_one_process_and_only_process_0_writes(tmp_path):
-    one = run_cli(*TINY, f"logdir={tmp_path / 'one'}")
+    one = run_here(*TINY, f"logdir={tmp_path / 'one'}")  # the one-process sweep: here
     assert one.returncode == 0, one.stderr
     port, logdir = _free_port(), tmp_path / "two"
     args = [
@@ -190,14 +201,16 @@ def test_a_sweep_over_two_processes_equals_one_process_and_only_process_0_writes
     assert (tmp_path / "ck" / "two" / "summer-fall" / "fae").is_dir()
 
 
-def test_a_batch_that_does_not_split_over_the_devices_is_one_line(tmp_path):
-    proc = run_cli("train.batch_size=12", f"logdir={tmp_path / 'runs'}", env=EIGHT)
+def test_a_batch_that_does_not_split_over_the_devices_is_one_line(checks):
+    """The sweep's ``main`` with train.batch_size=12, run on the eight devices of
+    sharded_checks.py's process (virtual devices exist only in a process started with them)."""
+    proc = subprocess.CompletedProcess(["experiments.sweep"], *checks["refusal"])
     # A cross_season step takes the batch as pairs of a place's two images: 16 for 8 devices.
     assert_one_line_error(proc, "fae.batch_size=12 (train.batch_size unless set)", "multiple of 16")
-    assert not (tmp_path / "runs").exists()
+    assert not (checks["folder"] / "runs").exists()
 
 
 def test_asking_for_more_devices_than_exist_is_one_line(tmp_path):
-    proc = run_cli("mesh.devices=64", f"logdir={tmp_path / 'runs'}")
+    proc = run_here("mesh.devices=64", f"logdir={tmp_path / 'runs'}")  # this process: 1 device
     assert_one_line_error(proc, "mesh.devices=64", "mesh.devices=0")
     assert not (tmp_path / "runs").exists()

@@ -10,7 +10,7 @@ import pytest
 from tensorboard.plugins.hparams import plugin_data_pb2
 from tensorboard.util import tensor_util
 
-from tests.conftest import SMALL, numpy_cosine, read_run, run_cli, run_here
+from tests.conftest import SMALL, numpy_cosine, read_run, run_here
 from vpr_jax.outputs.results import COLUMNS, read_results
 
 PAIRS = {"summer-spring", "summer-fall", "spring-fall"}
@@ -186,9 +186,10 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
     (logdir / "results.csv").write_text(
         "\n".join([lines[0]] + [ln for ln in lines[1:] if ln.split(",")[-1] in keep_runs]) + "\n"
     )
-    # The models trained by the first run are restored, not retrained.
-    checkpoints = finished.parent / "checkpoints"  # the first run's; both logdirs are "runs"
-    proc = run_cli(*SMALL, f"logdir={logdir}", f"train.checkpoint_dir={checkpoints}")
+    # The models trained by the first run are restored, not retrained (a copy of them: the
+    # shared sweep's worker holds their folders' locks; both logdirs are "runs").
+    checkpoints = shutil.copytree(finished.parent / "checkpoints", tmp_path / "checkpoints")
+    proc = run_here(*SMALL, f"logdir={logdir}", f"train.checkpoint_dir={checkpoints}")
     assert proc.returncode == 0, proc.stderr
     assert f"resuming: {len(kept)} of {len(rows)}" in proc.stdout
     assert "spring-fall fae: restored the trained model" in proc.stdout
@@ -205,7 +206,7 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
     for r in lost:
         assert len(list((logdir / r.run).glob("events.out.tfevents.*"))) == 1
     # A finished sweep run again computes nothing.
-    proc = run_cli(*SMALL, f"logdir={logdir}")
+    proc = run_here(*SMALL, f"logdir={logdir}")
     assert proc.returncode == 0 and proc.stdout.count(": recall@1") == 0
 
 

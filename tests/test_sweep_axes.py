@@ -12,12 +12,10 @@ import numpy as np
 import pytest
 
 from tests.conftest import (
-    REPO,
     SMALL_ROUTE,
     TINY_MODELS,
     TINY_ROUTE,
     read_run,
-    run_cli,
     run_here,
     shared_folder,
     shared_sweep,
@@ -62,10 +60,9 @@ def _write_module(folder: Path) -> None:
 
 @pytest.fixture(scope="session")
 def axes(tmp_path_factory):
-    """(logdir, args, environment, fit record, process) of one sweep per session (read-only
-    for every test)."""
+    """(logdir, args, the module's folder, fit record, process) of one sweep per session
+    (read-only for every test)."""
     folder = shared_folder(tmp_path_factory, "axes_module", _write_module)
-    env = {"PYTHONPATH": f"{REPO}:{folder / 'mine'}"}
     record = folder / "fits.jsonl"
     args = [
         *SMALL_ROUTE,
@@ -80,8 +77,8 @@ def axes(tmp_path_factory):
         "seeds=[0,1]",
         f"train.checkpoint_dir={folder / 'checkpoints'}",
     ]
-    logdir, proc = shared_sweep(tmp_path_factory, "axes_sweep", *args, env=env)
-    return logdir, args, env, record, proc
+    logdir, proc = shared_sweep(tmp_path_factory, "axes_sweep", *args, path=[folder / "mine"])
+    return logdir, args, folder / "mine", record, proc
 
 
 def _group(rows, method):
@@ -158,13 +155,13 @@ def test_a_method_s_name_loads_the_fit_validation_chose(axes):
 
 
 def test_a_value_added_to_a_list_adds_only_its_cells(axes, tmp_path):
-    logdir, args, env, _, _ = axes
+    logdir, args, mine, _, _ = axes
     copy = shutil.copytree(logdir, tmp_path / "runs")
     checkpoints = logdir.parent.parent / "axes_module" / "checkpoints"
     shutil.copytree(checkpoints, tmp_path / "checkpoints")
     more = [a.replace("[4,8]", "[4,8,6]") for a in args]
     more = [a for a in more if "checkpoint_dir" not in a]
-    proc = run_cli(*more, f"logdir={copy}", env=env)
+    proc = run_here(*more, f"logdir={copy}", path=[mine])
     assert proc.returncode == 0, proc.stderr
     before, after = (len(read_results(Path(d) / "results.csv")) for d in (logdir, copy))
     assert after - before == 2  # n_components=6 at skip 0 and 2

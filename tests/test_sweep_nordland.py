@@ -1,10 +1,11 @@
-"""Nordland-shaped data through the CLI: a 64x32 release folder and season videos that the
-test writes itself (from the built-in renderer, so the places are real places)."""
+"""Nordland-shaped data through the CLI (its ``main``, in this process): a 64x32 release
+folder and season videos that the test writes itself (from the built-in renderer, so the
+places are real places)."""
 
 import cv2
 import numpy as np
 
-from tests.conftest import run_cli
+from tests.conftest import run_here
 from tests.inputs import write_release
 from vpr_jax.data.synthetic import render_season
 from vpr_jax.outputs.results import read_results
@@ -27,7 +28,7 @@ def _frames(season):
 
 def test_image_release_folder_runs_through_the_cli(tmp_path):
     root = write_release(tmp_path / "nordland", {s: _frames(s) for s in SEASONS})
-    proc = run_cli(
+    proc = run_here(
         "data.source=nordland_images", f"data.root={root}", *SPLIT, f"logdir={tmp_path / 'runs'}"
     )
     assert proc.returncode == 0, proc.stderr
@@ -56,13 +57,13 @@ def test_season_videos_run_through_the_cli_and_are_cached(tmp_path):
         *SPLIT,
         "methods=raw",
     ]
-    proc = run_cli(*args, f"logdir={tmp_path / 'runs'}")
+    proc = run_here(*args, f"logdir={tmp_path / 'runs'}")
     assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "cache").iterdir())) == 2
     (row,) = read_results(tmp_path / "runs" / "results.csv")
     assert row.n_test == 30 and row.recall_at_1 > 0
     root.joinpath("nordland_summer.avi").touch()  # newer mtime: a new cache entry
-    proc = run_cli(*args, f"logdir={tmp_path / 'runs2'}")
+    proc = run_here(*args, f"logdir={tmp_path / 'runs2'}")
     assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "cache").iterdir())) == 3
     again = read_results(tmp_path / "runs2" / "results.csv")[0]

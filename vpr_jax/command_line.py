@@ -12,7 +12,14 @@ from vpr_jax.config import SweepConfig, SweepKnobs, normalised
 from vpr_jax.errors import UserError
 
 # Sweep knobs that take a list; written without brackets (methods=raw,pca) they are one.
-_LIST_KEYS = ("methods", "removed_pcs", "seeds", "data.seasons", "sequence.ds")
+_LIST_KEYS = (
+    "methods",
+    "removed_pcs",
+    "seeds",
+    "data.seasons",
+    "sequence.ds",
+    "split.train_places",
+)
 
 
 def _normalise_cli(argv: list[str]) -> list[str]:

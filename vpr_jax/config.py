@@ -169,9 +169,19 @@ class SplitConfig:
     test_sections: int = 0  # > 0: Olid-style sections (n_train and train_fraction unused)
     database: str = "test"  # test: the database is the test places; all: every frame loaded
     val_fraction: float = 0.1  # end of the training stretch that validates (after a gap)
+    # Fit every method on this many of the training stretch's places, spread evenly over
+    # it (validation and test places unchanged); a list: a learning curve, each value its
+    # own rows, never chosen among. None: every training place.
+    train_places: tuple[int, ...] | None = None
 
     def __post_init__(self):
         _check(self.n_train >= 1, f"split.n_train={self.n_train} must be >= 1")
+        places = list(self.train_places or ())
+        _check(
+            self.train_places is None or (places and min(places) >= 2),
+            f"split.train_places={places} needs counts of at least 2 places, e.g. "
+            "split.train_places=[100,200,400]",
+        )
         _check(self.n_test >= 1, f"split.n_test={self.n_test} must be >= 1")
         _check(self.gap >= 0, f"split.gap={self.gap} must be >= 0")
         _check(

@@ -116,3 +116,56 @@ def _draw_shift(key: PRNGKeyArray, fraction: float, size: int) -> Int[Array, ""]
     span = fraction * size
     shift = jnp.round(jax.random.uniform(key, (), minval=-span, maxval=span))
     return jnp.clip(shift, -limit, limit).astype(jnp.int32)
+
+
+class ConditionConfig(NamedTuple):
+    """A change of conditions that keeps the place (``condition_change``): what a season,
+    the weather or the hour does to a frame, roughly. Ranges are uniform draws."""
+
+    brightness: float = 0.2  # added to every pixel, in [-b, b]
+    contrast: float = 0.4  # about the image's mean, a factor in [1 - c, 1 + c]
+    gamma: float = 0.5  # pixels to the power g, log g uniform in [-log(1 + g), log(1 + g)]
+    blur: float = 0.5  # chance of a 3x3 box blur (mist, motion)
+    shadow: float = 0.5  # chance of a vertical band darkened to 40-80 % (a shadow, a pole)
+    noise: float = 0.02  # standard deviation of added Gaussian noise
+    shift: AugmentConfig = PLACE  # small shifts, no flip (they keep the place)
+
+
+CONDITIONS = ConditionConfig()
+
+
+def condition_change(
+    key: PRNGKeyArray, image: Float[Array, "h w"], cfg: ConditionConfig = CONDITIONS
+) -> Float[Array, "h w"]:
+    """One random change of conditions of one image, clipped to [0, 1]: shift, gamma,
+    contrast, brightness, then maybe a blur and a shadow band, then noise."""
+    keys = jax.random.split(key, 9)
+    h, w = image.shape
+    out = augment_one(keys[0], image, cfg.shift)
+    log_g = jnp.log1p(cfg.gamma)
+    out = jnp.clip(out, 0.0, 1.0) ** jnp.exp(
+        jax.random.uniform(keys[1], (), minval=-log_g, maxval=log_g)
+    )
+    factor = jax.random.uniform(keys[2], (), minval=1 - cfg.contrast, maxval=1 + cfg.contrast)
+    out = (out - jnp.mean(out)) * factor + jnp.mean(out)
+    out = out + jax.random.uniform(keys[3], (), minval=-cfg.brightness, maxval=cfg.brightness)
+    padded = jnp.pad(out, 1, mode="edge")
+    blurred = sum(padded[dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)) / 9
+    out = jnp.where(jax.random.bernoulli(keys[4], cfg.blur), blurred, out)
+    start = jax.random.randint(keys[5], (), 0, w)
+    width = jax.random.randint(keys[6], (), w // 16, w // 4 + 1)
+    band = (jnp.arange(w) >= start) & (jnp.arange(w) < start + width)
+    dark = jax.random.uniform(keys[7], (), minval=0.4, maxval=0.8)
+    shadowed = jnp.where(band[None, :], out * dark, out)
+    out = jnp.where(jax.random.bernoulli(keys[8], cfg.shadow), shadowed, out)
+    out = out + cfg.noise * jax.random.normal(jax.random.fold_in(key, 1), out.shape)
+    return jnp.clip(out, 0.0, 1.0)
+
+
+def condition_views(
+    key: PRNGKeyArray, images: Float[Array, "b h w"], cfg: ConditionConfig = CONDITIONS
+) -> Float[Array, "b 2 h w"]:
+    """Two independent changes of conditions of every image: a positive pair each."""
+    keys = jax.random.split(key, (images.shape[0], 2))
+    view = jax.vmap(jax.vmap(lambda k, im: condition_change(k, im, cfg), (0, None)), (0, 0))
+    return view(keys, images)

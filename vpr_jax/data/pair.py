@@ -76,6 +76,20 @@ class PairData(NamedTuple):
         return self.train[:n], self.train[n:]
 
 
+def with_train_places(pair: PairData, places: int | None) -> PairData:
+    """The pair fitted on ``places`` of its training places, spread evenly over them (both
+    seasons' same places where aligned; a benchmark trained on its database: that many of
+    its database images); the validation and test places are unchanged. None: all."""
+    if places is None:
+        return pair
+    seasons = pair.aligned_train if pair.aligned_training else (pair.train,)
+    n = len(seasons[0])
+    if places > n:
+        raise ValueError(f"split.train_places={places} exceeds the {n} training places")
+    keep = np.unique(np.linspace(0, n - 1, places).round().astype(int))
+    return pair._replace(train=np.concatenate([s[keep] for s in seasons]))
+
+
 def pair_data(
     route: Route, split: Split, db: str, query: str, database: str, tolerance: int
 ) -> PairData:

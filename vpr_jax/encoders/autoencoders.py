@@ -327,6 +327,8 @@ class ModelState:
     train_seconds: Array  # () float: training time, over every session
     spec: Spec = dataclasses.field(metadata={"static": True})
     image_shape: tuple[int, int] = dataclasses.field(metadata={"static": True})
+    kept_epoch: Array | None = None  # () int: the epoch whose parameters these are (0: the
+    # start, untouched by training); None: a state saved before 2026-12-05
 
 
 def encode_state(state: ModelState, images: Float[Array, "n h w ..."]) -> Float[Array, "n code"]:

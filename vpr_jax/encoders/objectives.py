@@ -13,6 +13,11 @@
   the batch's other places (InfoNCE, symmetric over the two seasons, at ``temperature``).
   It learns what recognition needs directly: the one signal the aligned places give.
   Training data: aligned pairs, as for cross_season.
+- ``augment_contrastive``: InfoNCE as ``contrastive``, for data without aligned places: the
+  positive pair of an image is two changes of conditions of it (``vpr_jax.data.augment.
+  condition_views``: brightness, contrast, gamma, blur, a shadow band, noise, small shifts),
+  drawn anew at every step; the batch's other images are its wrong places. Training data:
+  the images, as for reconstruct.
 
 The first two are mean squared errors per example (an image, or a place: the mean of its
 two seasons' errors; a model that removes components reproduces its residual image,
@@ -30,11 +35,15 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from vpr_jax.data.augment import AugmentConfig, augment_batch
+from vpr_jax.data.augment import AugmentConfig, augment_batch, condition_views
 from vpr_jax.encoders import autoencoders as ae
 
-OBJECTIVES = ("reconstruct", "cross_season", "contrastive")
+OBJECTIVES = ("reconstruct", "cross_season", "contrastive", "augment_contrastive")
 PAIRED = ("cross_season", "contrastive")  # objectives that train on aligned places' pairs
+VIEWS = ("augment_contrastive",)  # objectives that make their pairs from one image
+CODE_ONLY = ("contrastive", "augment_contrastive")  # no decoder output to train or show
+# The fixed key of the changes of conditions a validation loss is measured on.
+VALIDATION_VIEWS_SEED = 0
 
 
 def _check(objective: str) -> None:
@@ -46,7 +55,7 @@ def training_data(objective: str, images: np.ndarray, n_seasons: int = 2) -> np.
     """What an objective trains on, from the sweep's training images (``n_seasons`` aligned
     stretches back to back): the images themselves, or the places' pairs ``(n, 2, h, w)``."""
     _check(objective)
-    if objective == "reconstruct":
+    if objective not in PAIRED:
         return np.asarray(images, np.float32)
     if n_seasons != 2 or len(images) % 2:
         raise ValueError(f"{objective} needs the aligned training places of two seasons")
@@ -57,12 +66,12 @@ def training_data(objective: str, images: np.ndarray, n_seasons: int = 2) -> np.
 def examples_per_image(objective: str) -> int:
     """Images one training example holds: a batch of b images takes b / this examples."""
     _check(objective)
-    return 2 if objective in PAIRED else 1
+    return 2 if objective in (*PAIRED, *VIEWS) else 1
 
 
 def augment(key: PRNGKeyArray, batch: Array, cfg: AugmentConfig, objective: str) -> Array:
     """One random transform per example; a pair's two images share theirs."""
-    if objective == "reconstruct":
+    if objective not in PAIRED:
         return augment_batch(key, batch, cfg)
     pairs_last = jnp.moveaxis(batch, 1, -1)  # (b, h, w, 2): the pair as channels
     return jnp.moveaxis(augment_batch(key, pairs_last, cfg), -1, 1)
@@ -70,7 +79,7 @@ def augment(key: PRNGKeyArray, batch: Array, cfg: AugmentConfig, objective: str)
 
 def inputs_and_targets(objective: str, batch: Array) -> tuple[Array, Array]:
     """(images the model sees, what it should output for each), both ``(m, h, w ...)``."""
-    if objective == "reconstruct":
+    if objective not in PAIRED:
         return batch, batch
     a, b = batch[:, 0], batch[:, 1]
     mean = (a + b) / 2
@@ -110,10 +119,17 @@ def per_example_loss(
     temperature: float = 0.1,
     places: Int[Array, " n"] | None = None,
     radius: int = 0,
+    key: PRNGKeyArray | None = None,
 ) -> Float[Array, " n"]:
     """The loss of ``model`` (an auto-encoder module) per example of ``batch``: mean squared
     error of its output (reconstruct, cross_season) or InfoNCE of its code (contrastive,
-    its wrong places leaving out those within ``radius`` of ``places``)."""
+    its wrong places leaving out those within ``radius`` of ``places``; augment_contrastive,
+    the two views ``key`` draws of each image: the validation's fixed key without one)."""
+    if objective in VIEWS:
+        key = jax.random.key(VALIDATION_VIEWS_SEED) if key is None else key
+        views = condition_views(key, batch)
+        codes = model.encode(jnp.concatenate([views[:, 0], views[:, 1]]))
+        return contrastive_loss(codes[: len(batch)], codes[len(batch) :], temperature)
     if objective == "contrastive":
         codes = model.encode(jnp.concatenate([batch[:, 0], batch[:, 1]]))
         n = len(batch)
@@ -134,9 +150,11 @@ def loss(
     temperature: float = 0.1,
     places: Int[Array, " n"] | None = None,
     radius: int = 0,
+    key: PRNGKeyArray | None = None,
 ) -> Float[Array, ""]:
-    """The training loss of a batch: the mean of its per-example losses."""
+    """The training loss of a batch: the mean of its per-example losses (``key``: the
+    changes of conditions of augment_contrastive's views)."""
     if objective == "reconstruct":  # the same mean, summed as the seed's loss always was
         return ae.reconstruction_loss(graphdef, params, batch)
     model = nnx.merge(graphdef, params)
-    return jnp.mean(per_example_loss(objective, model, batch, temperature, places, radius))
+    return jnp.mean(per_example_loss(objective, model, batch, temperature, places, radius, key))

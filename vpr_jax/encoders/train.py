@@ -176,9 +176,9 @@ def make_train_step(
     """
     batch_sharding = None if mesh is None else NamedSharding(mesh, P(AXIS))
 
-    def loss_fn(trainable, fixed, batch, places, anchor):
+    def loss_fn(trainable, fixed, batch, places, anchor, key):
         params = {**trainable, **fixed}
-        loss = objectives.loss(objective, graphdef, params, batch, temperature, places, radius)
+        loss = objectives.loss(objective, graphdef, params, batch, temperature, places, radius, key)
         if not start_decay:
             return loss, loss
         return loss + start_decay * start_penalty(trainable, anchor), loss
@@ -193,7 +193,8 @@ def make_train_step(
             batch = objectives.augment(key, batch, augment, objective)
         trainable, fixed = ae.split_fixed(params)
         grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
-        (_, loss), grads = grad_fn(trainable, fixed, batch, places, anchor)
+        views_key = jax.random.fold_in(key, 7)  # the changes of conditions (augment_contrastive)
+        (_, loss), grads = grad_fn(trainable, fixed, batch, places, anchor, views_key)
         updates, opt_state = tx.update(grads, opt_state, trainable)
         params = {**optax.apply_updates(trainable, updates), **fixed}
         # The augmented batch stays on the device unless the caller fetches it (TensorBoard
@@ -493,7 +494,7 @@ def log_epoch(
     log.scalar("loss/validation", scored.val_loss, state.step)
     if not math.isnan(scored.recall_at_1):
         log.scalar("validation/recall_at_1", scored.recall_at_1, state.step)
-    if trainer.objective != "contrastive":
+    if trainer.objective not in objectives.CODE_ONLY:
         shown = _examples(val_examples, 6)
         inputs, targets = (
             np.asarray(x) for x in objectives.inputs_and_targets(trainer.objective, shown)

@@ -220,12 +220,26 @@ def autoencoder_method(
     )
 
 
-def report(state: ae.ModelState, settings: dict, basis: np.ndarray | None = None) -> Report:
-    """Epochs, early stopping and the training time (over every session) of a fit."""
+def start_name(init: str, units: int) -> str:
+    """What a model's weights start from, in words: "lda in 256 directions"."""
+    if init == "random":
+        return "drawn weights"
+    return f"{init} in {units // 2} directions"
+
+
+def report(
+    state: ae.ModelState, settings: dict, basis: np.ndarray | None = None, units: int = 0
+) -> Report:
+    """Epochs, early stopping, the training time (over every session) of a fit, the epoch
+    it kept and what it started from (``units``: the units a linear start sets)."""
+    kept = None if state.kept_epoch is None else int(state.kept_epoch)
     return Report(
         n_iter=int(state.epochs),
         stopped_early=bool(state.stopped_early),
         fit_seconds=float(state.train_seconds),
         basis=basis,
         basis_name="hidden_units",
+        kept_epoch=kept,
+        epochs_trained=int(state.epochs),
+        start=start_name(settings["init"], units),
     )

@@ -106,4 +106,9 @@ def _model(train, aligned, s: dict) -> autoencoder.Model:
     )
 
 
-method = autoencoder.autoencoder_method("cae", _model, Settings, autoencoder.report)
+def _report(state, settings: dict):
+    """The training record; a linear start sets the linear branch's units."""
+    return autoencoder.report(state, settings, units=settings["linear_units"])
+
+
+method = autoencoder.autoencoder_method("cae", _model, Settings, _report)

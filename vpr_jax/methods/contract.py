@@ -63,6 +63,10 @@ class Report(NamedTuple):
     basis_name: str = "basis"  # its TensorBoard tag: basis/<basis_name>
     validation: bool = True  # False: the state cannot describe the validation places (NaN
     # validation scores: nothing is chosen on them)
+    kept_epoch: int | None = None  # a trained fit: the epoch whose weights it kept (0: its
+    # start, untouched by training); None: the fit does not train
+    epochs_trained: int | None = None  # a trained fit: the epochs it trained
+    start: str = ""  # a trained fit: what it started from, e.g. "lda in 256 directions"
 
 
 class TrainingSet(NamedTuple):

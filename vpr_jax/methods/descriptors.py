@@ -45,6 +45,10 @@ class Descriptors(NamedTuple):
     n_iter: int = 0  # iterations of an iterative fit (0: closed form; epochs when trained)
     converged: bool = True  # False: an iterative fit stopped at its limit
     stopped_early: bool = False  # training ended before its last epoch
+    kept_epoch: int | None = None  # a trained fit's kept epoch (0: its start); None: untrained
+    epochs_trained: int | None = None
+    start: str = ""  # a trained fit's start, in words
+    n_train: int | None = None  # images the fit learnt from (None: the pair's all)
     basis: tuple[np.ndarray | None, ...] = ()  # per part: (m, 32, 64) images of what the
     basis_name: str = "basis"  # method removed or learned; TensorBoard tag basis/<name>
     warning: str | None = None  # one line for the run log (non-convergence, degenerate)

@@ -70,7 +70,8 @@ def _model(train, aligned, s: dict) -> autoencoder.Model:
 
 def _report(state: ae.ModelState, settings: dict) -> Report:
     """What each hidden unit looks for: its weights as an image."""
-    return autoencoder.report(state, settings, np.asarray(state.params["encoder"]["kernel"]).T)
+    kernel = np.asarray(state.params["encoder"]["kernel"]).T
+    return autoencoder.report(state, settings, kernel, units=settings["hidden"])
 
 
 method = autoencoder.autoencoder_method("fae", _model, Settings, _report)

@@ -21,6 +21,8 @@ from __future__ import annotations
 import dataclasses
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -48,8 +50,19 @@ class Settings:
     output: str = "coefficients"  # coefficients | pixels (the seed's back-projection)
     subspace_components: int = 512  # what the subspace solver fits, whichever methods use it
     removed_pcs: int = 0  # leading components removed (the sweep's removed_pcs: one fit)
+    # 0: the change-removal descriptor; c > 0: after the removed ones, c components each
+    # scaled to unit variance, nothing else (PCA whitening: what ica rotates)
+    whiten: int = 0
 
     def __post_init__(self):
+        if self.whiten < 0:
+            raise UserError(
+                f"pca.whiten={self.whiten} is negative: use 0 (no whitening) or a count"
+            )
+        if self.whiten and self.output == "pixels":
+            raise UserError(
+                "pca.whiten describes coefficients: use it with pca.output=coefficients"
+            )
         if self.subspace_components < 1:
             raise UserError(
                 f"pca.subspace_components={self.subspace_components} must be at least 1"
@@ -64,6 +77,14 @@ class InPixels(NamedTuple):
     """A PCA fit that describes images in pixel space (``pca.output=pixels``)."""
 
     fit: pca.PCAState
+
+
+class Whitened(NamedTuple):
+    """A PCA fit that describes images by ``width`` components after the removed ones, each
+    scaled to unit variance (``pca.whiten``)."""
+
+    fit: pca.PCAState
+    width: jax.Array  # () int
 
 
 # Above this many components (min(N - 1, D)), auto solves only the leading
@@ -102,15 +123,22 @@ def shared_fit(train, n_components: int, settings: Settings, mesh, seed: int) ->
         raise UserError(f"{err} on {len(train)} training images: set pca.solver={other}") from None
 
 
-def fit(train, aligned, key, *, pca_fit: PCAFit, output: str, **shared_settings):
+def fit(train, aligned, key, *, pca_fit: PCAFit, output: str, whiten: int, **shared_settings):
     """The pair's shared fit is PCA's own (``shared_settings`` shaped it)."""
+    if whiten:
+        return Whitened(pca_fit.state, jnp.int32(whiten))
     return InPixels(pca_fit.state) if output == "pixels" else pca_fit.state
 
 
 def encode(state, images: Float[Array, "n h w"], removed_pcs: int = 0) -> Float[Array, "n e"]:
-    """The images with their first ``removed_pcs`` principal components removed."""
+    """The images with their first ``removed_pcs`` principal components removed (whitened:
+    the next ``width`` of them at unit variance, nothing else)."""
     if isinstance(state, InPixels):
         return pca.encode(state.fit, images, removed_pcs, "pixels")
+    if isinstance(state, Whitened):
+        coefficients = pca.project(state.fit, images) * jax.lax.rsqrt(state.fit.explained_variance)
+        kept = jnp.arange(coefficients.shape[1]) - removed_pcs
+        return jnp.where((kept >= 0) & (kept < state.width), coefficients, 0.0)
     return pca.suffix_descriptors(state, images)[:, removed_pcs:]
 
 
@@ -124,9 +152,10 @@ def beyond_rank(k: int, held: int, what: str) -> NotScored:
 
 def _report(state, settings: dict) -> Report:
     k = settings["removed_pcs"]
-    components = np.asarray((state.fit if isinstance(state, InPixels) else state).components)
-    if k > len(components):  # the first k components are not defined by these images
-        raise beyond_rank(k, len(components), "principal components")
+    fitted = state if isinstance(state, pca.PCAState) else state.fit
+    components = np.asarray(fitted.components)
+    if k + settings["whiten"] > len(components):  # not defined by these images
+        raise beyond_rank(k + settings["whiten"], len(components), "principal components")
     return Report(basis=components[:k] if k else None, basis_name="removed_components")
 
 
@@ -149,10 +178,14 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings | None:
     """Counts the training images serve, and no more than the shared fit holds."""
     k, limit = settings.removed_pcs, training.pca_limit
     why = f"PCA of {training.n_images} training images has {limit} components"
-    if not removed_count_fits("pca", k, limit, why, training, log):
+    if settings.whiten:
+        why += f", {settings.whiten} of them whitened (pca.whiten)"
+    # at least one component is left, or all ``whiten`` of them
+    below = limit - max(settings.whiten - 1, 0)
+    if not removed_count_fits("pca", k, below, why, training, log):
         return None
     held = shared_components(settings, training.n_images, training.n_pixels)
-    if max(1, k) > held:
+    if max(1, k + settings.whiten) > held:
         raise UserError(
             f"method pca needs {k} components of the pair's PCA fit, which holds {held}: "
             f"set {shared.fix}"
@@ -170,7 +203,7 @@ method = Method(
     encode=encode,
     settings=Settings,
     # one fit serves every removed count; in coefficients, one encoding too (a suffix each)
-    axes=lambda s: {"removed_pcs": SERVED if s.output == "pixels" else SUFFIX},
+    axes=lambda s: {"removed_pcs": SERVED if s.output == "pixels" or s.whiten else SUFFIX},
     needs=("pca_fit",),
     random=False,
     check=check,

@@ -79,6 +79,7 @@ def fit_model(
         train_seconds=np.float32(result.train_seconds),
         spec=spec,
         image_shape=tuple(int(s) for s in train.shape[1:3]),
+        kept_epoch=np.int32(result.best_epoch),
     )
 
 

@@ -41,7 +41,7 @@ EXTENDABLE_KEYS = (
 )
 # Keys inside a group that add cells, like removed_pcs: the ds axis. The group's other keys
 # change the numbers of its cells.
-AXIS_KEYS = {"sequence": ("enabled", "ds")}
+AXIS_KEYS = {"sequence": ("enabled", "ds"), "split": ("train_places",)}
 # The layout of a logdir (config.yaml, results.csv's columns, the runs' files): written as
 # config.yaml's ``format``; a logdir of another format is refused, never read or extended.
 FORMAT = 3  # 3: results.csv's settings column, cells named by their runs (2026-12-05)
@@ -55,6 +55,7 @@ LISTING = (
     "setting",
     "cell",  # every swept setting of the chosen cell: removed_pcs=20, n_components=64 ...
     "seed",
+    "kept_epoch",  # a trained model: the epoch kept (0: its start, untouched by training)
     "val_recall_at_1",
     "selected",
     "folder",

@@ -13,7 +13,7 @@ dashed so they stay apart there.
 from __future__ import annotations
 
 from vpr_jax.method_table import NAMES, model_label
-from vpr_jax.outputs.results import ResultRow, natural_order
+from vpr_jax.outputs.results import ResultRow, natural_order, plain_setting
 
 # tensorboardColorBlindAssist, the palette of TensorBoard's SCALARS and PR CURVES dashboards
 TB_PALETTE = ("#ff7043", "#0077bb", "#cc3311", "#33bbee", "#ee3377", "#009988", "#bbbbbb")
@@ -23,8 +23,9 @@ _OBJECTIVE_ORDER = ("", "reconstruct", "cross_season", "contrastive")
 def label_of(row: ResultRow) -> str:
     """A results row's method as the method-by-method runs and the legends name it, every
     seed of it together (``model_label``): ``pca``, ``fae_cross_season``,
-    ``ica_n_components=64``, a user's method or outside set by its name."""
-    return model_label(row.method, row.objective, row.setting)
+    ``ica_n_components=64``, a user's method or outside set by its name; every training
+    places value of a learning curve together."""
+    return model_label(row.method, row.objective, plain_setting(row))
 
 
 def _rank(row: ResultRow) -> tuple:

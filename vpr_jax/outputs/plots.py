@@ -24,6 +24,7 @@ from vpr_jax.outputs.results import (  # noqa: E402
     best_objectives,
     selected_rows,
     sweep_labels,
+    training_places,
 )
 
 
@@ -160,6 +161,39 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
             ylim=(0, 1.02),
             xticks=sorted({r.ds for r in rows}),
         )
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
+    _save(fig, path)
+
+
+def learning_curves_figure(rows: list[ResultRow], path: Path):
+    """One panel per season pair: recall@1 against the training places a method was fitted
+    on (``split.train_places``, log scale), a line per method at its validation-selected
+    setting for each value (single images; several seeds: their mean)."""
+    shortest = min(r.ds for r in rows)
+    best = [r for r in selected_rows(rows) if r.ds == shortest and training_places(r) is not None]
+    pairs = list(dict.fromkeys(r.season_pair for r in best))  # sweep order
+    style = styles(best)
+    fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
+    for ax, pair in zip(axes[0], pairs, strict=True):
+        for method, line in style.items():
+            by_places: dict[int, list[ResultRow]] = {}
+            for r in best:
+                if r.season_pair == pair and label_of(r) == method:
+                    by_places.setdefault(training_places(r), []).append(r)
+            points = sorted((p, _mean(r, "recall_at_1")) for p, r in by_places.items())
+            if points:
+                ax.plot(*zip(*points, strict=True), marker="o", label=method, **line)
+        ax.set(
+            title=pair,
+            xlabel="training places a season (log scale)",
+            ylabel="recall@1",
+            ylim=(0, 1.02),
+            xscale="log",
+        )
+        ticks = sorted({training_places(r) for r in best})
+        ax.set_xticks(ticks, [str(t) for t in ticks])
+        ax.minorticks_off()
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
     _save(fig, path)

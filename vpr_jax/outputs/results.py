@@ -59,12 +59,25 @@ ResultRow = NamedTuple(
         ("n_iter", int),  # iterations of an iterative fit (epochs for the auto-encoders)
         ("converged", int),  # ICA: 0 when it stopped at ica.max_iter; 1 for the others
         ("stopped_early", int),  # auto-encoders: 1 when early stopping ended the training
+        ("kept_epoch", int | None),  # a trained method: the epoch whose weights it kept (0:
+        # its start, untouched by training); empty for a method that does not train
+        ("epochs_trained", int | None),  # a trained method: the epochs it trained
+        ("start", str),  # a trained method: what it started from ("lda in 256 directions")
         ("seed", int),  # the fit's seed (seeds); the data's (seed) for methods that draw none
         ("run", str),  # the cell's TensorBoard run, relative to the logdir
     ],
 )
 COLUMNS: tuple[str, ...] = ResultRow._fields
-COLUMN_TYPES: dict[str, type] = ResultRow.__annotations__
+
+
+def _optional_int(text) -> int | None:
+    return None if text in ("", None) else int(text)
+
+
+COLUMN_TYPES: dict[str, type] = {
+    name: _optional_int if kind == int | None else kind
+    for name, kind in ResultRow.__annotations__.items()
+}
 TIMING_NAMES = ("fit_seconds", "encode_ms_per_image")
 
 
@@ -146,17 +159,66 @@ def read_results(path: Path) -> list[ResultRow]:
 
 
 class GroupKey(NamedTuple):
-    """The cells a setting is chosen among: one pair, method, objective and ds, whatever
+    """The cells a setting is chosen among: one pair, method, objective and ds (and value
+    of each setting whose values are rows of their own: the training places), whatever
     setting, removed-PC count and seed."""
 
     season_pair: str
     method: str
     objective: str
     ds: int
+    rows: tuple = ()  # (name, value) of the row keys the cell has (ROW_KEYS)
+
+
+# Settings of the sweep whose values are rows of their own, never chosen among: the
+# training places of a learning curve (split.train_places).
+ROW_KEYS = ("train_places",)
+
+
+def row_values(row: ResultRow) -> tuple:
+    """(name, value) of the row keys the row's cell has."""
+    values = settings_of(row)
+    return tuple((k, values[k]) for k in ROW_KEYS if k in values)
+
+
+def plain_setting(row: ResultRow) -> str:
+    """The row's setting less the row keys (the training places of a learning curve)."""
+    values = settings_of(row)
+    if not any(k in values for k in ROW_KEYS):
+        return row.setting
+    keep = tuple((k, v) for k, v in values.items() if k not in (*SWEEP_KEYS, *ROW_KEYS))
+    return label(keep)
+
+
+def training_places(row: ResultRow) -> int | None:
+    """The training places the row's method was fitted on (a learning curve's point);
+    None: every training place."""
+    return settings_of(row).get("train_places")
+
+
+def largest_places(rows: list[ResultRow]) -> list[ResultRow]:
+    """The rows of a learning curve at its largest value of training places (and every row
+    without one): what the views of a sweep show beside the learning curves."""
+    most: dict[tuple, int] = {}
+    for r in rows:
+        key = (r.season_pair, r.method, r.objective)
+        most[key] = max(most.get(key, 0), training_places(r) or 0)
+    return [
+        r
+        for r in rows
+        if training_places(r) is None
+        or training_places(r) == most[(r.season_pair, r.method, r.objective)]
+    ]
 
 
 def group_key(row: ResultRow) -> GroupKey:
-    return GroupKey(**{f: getattr(row, f) for f in GroupKey._fields})
+    return GroupKey(
+        season_pair=row.season_pair,
+        method=row.method,
+        objective=row.objective,
+        ds=row.ds,
+        rows=row_values(row),
+    )
 
 
 def natural_order(text: str) -> tuple:
@@ -260,7 +322,7 @@ def best_objectives(rows: list[ResultRow]) -> set[str]:
     groups: dict[tuple, dict[str, list[ResultRow]]] = {}
     for row in selected_rows(rows):
         if row.objective:
-            key = (row.season_pair, row.method, row.ds)
+            key = (row.season_pair, row.method, row.ds, row_values(row))
             groups.setdefault(key, {}).setdefault(row.objective, []).append(row)
     return {
         r.run
@@ -282,11 +344,12 @@ def baseline_method(
 
 def baseline_of(row: ResultRow, selected: list[ResultRow], baseline: str) -> ResultRow | None:
     """The baseline of a selected row: the ``baseline`` method's selected row of its pair
-    at the same ds, of the same seed where it has several."""
+    at the same ds (and training places), of the same seed where it has several."""
+    at = (row.season_pair, baseline, row.ds, row_values(row))
     mine = [
         other
         for other in selected
-        if (other.season_pair, other.method, other.ds) == (row.season_pair, baseline, row.ds)
+        if (other.season_pair, other.method, other.ds, row_values(other)) == at
     ]
     same_seed = [other for other in mine if other.seed == row.seed]
     return (same_seed or mine or [None])[0]

@@ -229,6 +229,7 @@ class CompareSeries(NamedTuple):
     best_scores: np.ndarray  # of its selected cell: the PR curve
     best_correct: np.ndarray
     has_match: np.ndarray
+    learning: tuple = ()  # (training places, recall@1, AUC-PR) of a learning curve's points
 
 
 def write_method_run(
@@ -237,7 +238,9 @@ def write_method_run(
     """A method's run of the method-by-method view (``LOGDIR/compare/<method>``), its tags
     per pair: ``pr_curve/<pair>`` (its selected cell's curve, so PR CURVES overlays the
     methods of a pair in one chart) and ``<pair>/recall_at_1``, ``<pair>/auc_pr`` with the
-    removed-PC count as the step (a chart per pair and metric, a line per method)."""
+    removed-PC count as the step (a chart per pair and metric, a line per method); a
+    learning curve (``split.train_places``) as ``<pair>/by_training_places/recall_at_1``
+    and ``.../auc_pr`` with the training places as the step."""
     writer = SummaryWriter(str(run_dir))
     for pair, s in series.items():
         _add_pr_curve(
@@ -252,6 +255,10 @@ def write_method_run(
         for k, recall_at_1, auc_pr in s.points:
             writer.add_scalar(f"{pair}/recall_at_1", float(recall_at_1), global_step=k)
             writer.add_scalar(f"{pair}/auc_pr", float(auc_pr), global_step=k)
+        for places, recall_at_1, auc_pr in s.learning:
+            tag = f"{pair}/by_training_places"
+            writer.add_scalar(f"{tag}/recall_at_1", float(recall_at_1), global_step=places)
+            writer.add_scalar(f"{tag}/auc_pr", float(auc_pr), global_step=places)
     _closed(writer)
 
 
