@@ -85,9 +85,13 @@ _PEAK_RSS_WRAPPER = (
 )
 
 
-def sweep_in_fresh_process(args: list[str], logdir: Path, timeout: float | None = None):
+def sweep_in_fresh_process(
+    args: list[str], logdir: Path, timeout: float | None = None, fresh: bool = True
+):
     """``python -m experiments.sweep ARGS`` into ``logdir`` (checkpoints beside it), in a
-    fresh process: (wall seconds, peak RSS bytes). Exits with the sweep's stderr on failure."""
+    fresh process: (wall seconds, peak RSS bytes). Exits with the sweep's stderr on failure.
+    ``fresh=False`` (``--tiny`` runs, whose figures mean nothing): its ``main`` in this
+    process, its output kept back, and this process's peak RSS."""
     cmd = [
         sys.executable,
         "-m",
@@ -98,6 +102,8 @@ def sweep_in_fresh_process(args: list[str], logdir: Path, timeout: float | None 
     ]
     print(f"  running: {' '.join(cmd[1:])}", flush=True)
     start = time.perf_counter()
+    if not fresh:
+        return _sweep_here(cmd[3:], start)
     proc = subprocess.run(
         [sys.executable, "-c", _PEAK_RSS_WRAPPER, *cmd],
         cwd=REPO,
@@ -112,3 +118,20 @@ def sweep_in_fresh_process(args: list[str], logdir: Path, timeout: float | None 
         print(proc.stderr[-3000:], file=sys.stderr)
         raise SystemExit(f"{' '.join(args)} failed (exit {proc.returncode})")
     return wall, int(proc.stdout.strip().splitlines()[-1])
+
+
+def _sweep_here(argv: list[str], start: float) -> tuple[float, int]:
+    import contextlib
+    import io
+    import resource
+
+    from experiments import sweep
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = sweep.main(argv)
+    if code:
+        print(err.getvalue()[-3000:], file=sys.stderr)
+        raise SystemExit(f"{' '.join(argv)} failed (exit {code})")
+    wall = time.perf_counter() - start
+    return wall, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024

@@ -31,8 +31,8 @@ FAE, CAE; compilation and data generation included), with its peak RSS. ``--skip
 Ours: warm medians of --repeats runs in this process; peers the same, each in a fresh
 process without OPENBLAS_CORETYPE / OPENBLAS_L2_SIZE (``peers.py``: their native kernel).
 ``--tiny`` (for the tests; the figures mean nothing): ``common.TINY_SIZES`` on both sides,
-FastICA of 8 components, one warm run, the peers in this process, the protocol on a tiny
-route (``TINY_PROTOCOL``), scaling at ``scaling.TINY_FRAMES``, and no whole-route row.
+FastICA of 8 components, one warm run, the peers and the protocol in this process (on a
+tiny route, ``TINY_PROTOCOL``), scaling at ``scaling.TINY_FRAMES``, and no whole-route row.
 """
 
 from __future__ import annotations
@@ -203,7 +203,7 @@ def protocol_row(table: Table, extra: list[str], tiny: bool) -> None:
     with tempfile.TemporaryDirectory(prefix="vpr_jax-bench-") as tmp:
         logdir = Path(tmp) / "paper"
         args = ["preset=paper", *(TINY_PROTOCOL if tiny else []), *extra]
-        wall, peak = sweep_in_fresh_process(args, logdir)
+        wall, peak = sweep_in_fresh_process(args, logdir, fresh=not tiny)
         rows = read_results(logdir / "results.csv")
     from experiments.resolve import load
     from vpr_jax.methods.contract import needs_of

@@ -22,8 +22,8 @@ start and the route's generation included) and peak RSS. Its time grows faster t
 
 Prints one line per measurement and one per fitted exponent; ``--plot`` draws both on
 log-log axes. ``--tiny`` (for the tests): lengths 200 and 400 (``TINY_FRAMES``) unless
-``--frames`` names others, one warm run, and only the first length matched in a fresh
-process, the others in this one (a fresh interpreter is most of a tiny run's time).
+``--frames`` names others, one warm run, and only the first length matched and swept in a
+fresh process, the others in this one (a fresh interpreter is most of a tiny run's time).
 """
 
 from __future__ import annotations
@@ -116,11 +116,12 @@ def sweep_args(n: int) -> list[str]:
     ]
 
 
-def sweep_once(n: int) -> dict:
-    """Wall time and peak RSS of a raw + PCA sweep at route length n, in a fresh process."""
+def sweep_once(n: int, fresh: bool = True) -> dict:
+    """Wall time and peak RSS of a raw + PCA sweep at route length n, in a fresh process
+    (``fresh=False``: in this one)."""
     with tempfile.TemporaryDirectory(prefix="vpr_jax-scaling-") as tmp:
         seconds, peak = sweep_in_fresh_process(
-            sweep_args(n), Path(tmp) / "run", timeout=PROCESS_TIMEOUT_S
+            sweep_args(n), Path(tmp) / "run", timeout=PROCESS_TIMEOUT_S, fresh=fresh
         )
     return {"n": n, "seconds": seconds, "peak_bytes": peak}
 
@@ -132,7 +133,7 @@ def exponent(ns, values) -> float:
 
 def measure(frames: list[int], repeats: int, tiny: bool = False) -> dict:
     """Every measurement and fitted exponent; prints as it goes. ``tiny``: only the first
-    length is matched in a fresh process, the others in this one."""
+    length is matched and swept in a fresh process, the others in this one."""
     matching, sweeps = [], []
     for i, n in enumerate(frames):
         m = match_once(n, repeats) if tiny and i else _in_fresh_process(n, repeats)
@@ -142,8 +143,8 @@ def measure(frames: list[int], repeats: int, tiny: bool = False) -> dict:
             f"working memory {m['working_bytes'] / 2**20:.0f} MiB",
             flush=True,
         )
-    for n in frames:
-        s = sweep_once(n)
+    for i, n in enumerate(frames):
+        s = sweep_once(n, fresh=not (tiny and i))
         sweeps.append(s)
         print(
             f"  raw+pca sweep n={n:,}: {s['seconds']:.1f} s, peak RSS "

@@ -3,9 +3,10 @@
     XLA_FLAGS=--xla_force_host_platform_device_count=8 python tests/sharded_checks.py [FOLDER]
 
 A helper of tests/test_sharding.py: the virtual devices must exist before JAX starts, so
-the checks run in their own process. With FOLDER, the sweep's ``main`` is also run in this
-process with ``train.batch_size=12`` and ``logdir=FOLDER/runs`` (a batch that does not split
-over the eight devices), and its exit code, stdout and stderr are reported as ``refusal``.
+the checks run in their own process. With FOLDER, the sweep's ``main`` also runs in this
+process, twice: with ``train.batch_size=12`` and ``logdir=FOLDER/runs`` (a batch that does
+not split over the eight devices), reported as ``refusal``, and one pair of the small sweep
+into ``FOLDER/eight``, reported as ``eight`` (each: exit code, stdout, stderr).
 """
 
 import contextlib
@@ -19,6 +20,7 @@ import numpy as np
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from tests.conftest import SMALL
 from vpr_jax import sharding
 from vpr_jax.config import TrainConfig
 from vpr_jax.data.augment import AugmentConfig
@@ -119,18 +121,27 @@ def main() -> None:
     out["step_batch_shapes"] = sorted({int(b) for b in re.findall(r"f32\[(\d+),32,64\]", hlo)})
     out["step_all_reduces"] = hlo.count("all-reduce(")
     if len(sys.argv) > 1:
-        out["refusal"] = refusal(sys.argv[1])
+        folder = sys.argv[1]
+        out["refusal"] = sweep_here("train.batch_size=12", f"logdir={folder}/runs")
+        out["eight"] = sweep_here(
+            *EIGHT_DEVICE_SWEEP, f"logdir={folder}/eight", f"train.checkpoint_dir={folder}/ck"
+        )
     print(json.dumps(out))
 
 
-def refusal(folder: str) -> list:
-    """``python -m experiments.sweep train.batch_size=12 logdir=FOLDER/runs`` on this
-    process's devices: [exit code, stdout, stderr]."""
+# One pair of the suite's small sweep (tests/conftest.py SMALL), every method but the CAE:
+# test_sharding.py compares its rows with the single-device small sweep's.
+EIGHT_DEVICE_SWEEP = [*SMALL, "season_pairs=summer-fall", "methods=[raw,pca,diff_pca,ica,lda,fae]"]
+
+
+def sweep_here(*args: str) -> list:
+    """``python -m experiments.sweep ARGS`` on this process's devices: [exit code, stdout,
+    stderr]."""
     from experiments import sweep
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = sweep.main(["train.batch_size=12", f"logdir={folder}/runs"])
+        code = sweep.main(list(args))
     return [code, out.getvalue(), err.getvalue()]
 
 

@@ -1,4 +1,4 @@
-"""Every script in benchmarks/ runs: each is started as a user starts it, with ``--tiny`` (a
+"""Every script in benchmarks/ runs: each is run as its ``__main__`` with ``--tiny`` (a
 seconds-long run on data too small for its figures to mean anything), and must finish with
 exit code 0 and print the lines only a finished measurement prints (its ratios, its table).
 An API change that breaks a benchmark then fails here instead of waiting for the next person
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+import runpy
 import sys
 
 from tests.conftest import REPO, env_with_repo, run_process
@@ -25,6 +26,26 @@ def run_script(name: str, *args: str):
     return proc.stdout
 
 
+def run_here(capfd, name: str, *args: str) -> str:
+    """``python benchmarks/NAME ARGS`` run as its ``__main__`` in this process (benchmarks/
+    first on ``sys.path``, as for a script; ``capfd``: the test's captured output, also of
+    the processes it starts); asserts it succeeded and returns its stdout. A fresh
+    interpreter would pay JAX's import and its compilations again, most of a tiny run."""
+    saved = sys.argv, list(sys.path)
+    sys.argv, sys.path[:0] = [str(BENCHMARKS / name), *args], [str(BENCHMARKS)]
+    capfd.readouterr()
+    code = 0
+    try:
+        runpy.run_path(str(BENCHMARKS / name), run_name="__main__")
+    except SystemExit as stop:
+        code = stop.code or 0
+    finally:
+        sys.argv, sys.path[:] = saved
+    out, err = capfd.readouterr()
+    assert code == 0, (out[-3000:], err[-3000:])
+    return out
+
+
 def line_matching(out: str, pattern: str) -> str:
     """The first line of ``out`` that ``pattern`` matches (searched in each line)."""
     for line in out.splitlines():
@@ -33,10 +54,10 @@ def line_matching(out: str, pattern: str) -> str:
     raise AssertionError(f"no line matches {pattern!r} in:\n{out[-3000:]}")
 
 
-def test_run_all():
+def test_run_all(capfd):
     """Every row but the scaling exponents: those are scaling.py's ``measure`` at the same
     tiny lengths (test_scaling), three more fresh processes this test leaves out."""
-    out = run_script("run_all.py", "--tiny", "--skip-scaling")
+    out = run_here(capfd, "run_all.py", "--tiny", "--skip-scaling")
     header = line_matching(out, r"^what\s+ours\s+peer, same run\s+ratio\s+goal\s+met$")
     table = out[out.index(header) :]
     for row in (
@@ -55,8 +76,8 @@ def test_run_all():
     line_matching(out, r"^total \d+ s$")
 
 
-def test_bench_linear():
-    out = run_script("bench_linear.py", "--tiny")
+def test_bench_linear(capfd):
+    out = run_here(capfd, "bench_linear.py", "--tiny")
     assert "train (300, 256), queries 100 x database 100" in out
     for row in (
         "PCA fit ",
@@ -70,8 +91,8 @@ def test_bench_linear():
     line_matching(out, r"PCA encode \(100 \+ residual\)\s+\d+\.\d+ ms per image")
 
 
-def test_bench_ica():
-    out = run_script("bench_ica.py", "--tiny")
+def test_bench_ica(capfd):
+    out = run_here(capfd, "bench_ica.py", "--tiny")
     line_matching(out, r"images, 8 ICs\s+ours \(JAX\)\s+\d+\.\d+\s+\d+")
     line_matching(out, r"sklearn whiten_solver=eigh\s+\d+\.\d+\s+\d+\s+\d+\.\d+x")
     line_matching(out, r"Known sources mixed into 300 x 256")
@@ -79,15 +100,15 @@ def test_bench_ica():
     line_matching(out, r"sklearn whiten_solver=svd\s+\d+\.\d+\s+\d+\s+\d+\.\d+x\s+\d+\.\d{4}$")
 
 
-def test_bench_sequence():
-    out = run_script("bench_sequence.py", "--tiny")
+def test_bench_sequence(capfd):
+    out = run_here(capfd, "bench_sequence.py", "--tiny")
     line_matching(out, r"^100 x 100 ds=10 .*" + RATIO)
     line_matching(out, r"^100 x 1,000 \(full\) ds=10 .*" + RATIO)
     line_matching(out, r"best match agrees with numpy for \d+\.\d% of queries")
 
 
-def test_bench_autoencoders():
-    out = run_script("bench_autoencoders.py", "--tiny")
+def test_bench_autoencoders(capfd):
+    out = run_here(capfd, "bench_autoencoders.py", "--tiny")
     assert "Encode 100 database + 100 query images" in out
     assert "Training: 270 images, batch 16 (16 steps/epoch)" in out
     for model in ("FAE hidden 256", "CAE fast (24,48) s2d2", "CAE quick (16,32)", "CAE calc"):
@@ -104,9 +125,9 @@ def test_peers():
     assert report["seconds"] > 0 and report["first"] > 0 and report["blas"]
 
 
-def test_scaling(tmp_path):
+def test_scaling(tmp_path, capfd):
     plot = tmp_path / "scaling.png"
-    out = run_script("scaling.py", "--tiny", "--plot", str(plot))
+    out = run_here(capfd, "scaling.py", "--tiny", "--plot", str(plot))
     for n, queries in ((200, 20), (400, 40)):
         line_matching(out, rf"matching n={n} \({queries} queries\): \d+\.\d+ s, working memory")
         line_matching(out, rf"raw\+pca sweep n={n}: \d+\.\d s, peak RSS \d+\.\d+ GiB")
@@ -115,9 +136,9 @@ def test_scaling(tmp_path):
     assert plot.stat().st_size > 0
 
 
-def test_match_exactness(tmp_path):
+def test_match_exactness(tmp_path, capfd):
     root = write_folders(tmp_path / "data", n=100)
-    out = run_script("match_exactness.py", str(root), "--tiny")
+    out = run_here(capfd, "match_exactness.py", str(root), "--tiny")
     for case in ("raw pixels", "PCA, 10 components removed"):
         line_matching(
             out,
@@ -126,9 +147,10 @@ def test_match_exactness(tmp_path):
         )
 
 
-def test_real_data(tmp_path):
+def test_real_data(tmp_path, capfd):
     root = write_folders(tmp_path / "data", n=100)  # --tiny's split takes 94 frames
-    out = run_script(
+    out = run_here(
+        capfd,
         "real_data.py",
         str(root),
         "--tiny",

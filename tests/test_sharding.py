@@ -18,11 +18,9 @@ import pytest
 
 from tests.conftest import (
     REPO,
-    SMALL,
     assert_one_line_error,
     env_with_repo,
     numpy_cosine,
-    run_cli,
     run_here,
     run_process,
     shared_folder,
@@ -103,23 +101,18 @@ def _same_rows(a: list[dict], b: list[dict]) -> None:
             assert getattr(row, metric) == pytest.approx(expected, abs=tol), (key(row), metric)
 
 
-def test_the_sweep_on_eight_devices_equals_the_single_device_sweep(small_sweep, tmp_path):
+def test_the_sweep_on_eight_devices_equals_the_single_device_sweep(small_sweep, checks):
+    """One pair of the small sweep, run on the eight devices of sharded_checks.py's process."""
     logdir, _ = small_sweep
-    proc = run_cli(
-        *SMALL,
-        "season_pairs=summer-fall",
-        "methods=[raw,pca,diff_pca,ica,lda,fae]",
-        f"logdir={tmp_path / 'runs'}",
-        env=EIGHT,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "mesh: 8 cpu devices" in proc.stdout
+    code, stdout, stderr = checks["eight"]
+    assert code == 0, stderr[-3000:]
+    assert "mesh: 8 cpu devices" in stdout
     single = [
         r
         for r in read_results(logdir / "results.csv")
         if r.season_pair == "summer-fall" and r.method != "cae"
     ]
-    _same_rows(read_results(tmp_path / "runs" / "results.csv"), single)
+    _same_rows(read_results(checks["folder"] / "eight" / "results.csv"), single)
 
 
 def _run_together(commands: list[list[str]], logs: Path, **env: str) -> None:

@@ -139,26 +139,28 @@ def condition_change(
 ) -> Float[Array, "h w"]:
     """One random change of conditions of one image, clipped to [0, 1]: shift, gamma,
     contrast, brightness, then maybe a blur and a shadow band, then noise."""
-    keys = jax.random.split(key, 9)
+    shift_key, draw_key, noise_key = jax.random.split(key, 3)
     h, w = image.shape
-    out = augment_one(keys[0], image, cfg.shift)
+    # one draw of every random number the change needs (one generator call compiles and
+    # runs far faster than eight): u in [0, 1) each
+    u = jax.random.uniform(draw_key, (8,))
+    between = lambda i, low, high: low + (high - low) * u[i]  # noqa: E731
+    out = augment_one(shift_key, image, cfg.shift)
     log_g = jnp.log1p(cfg.gamma)
-    out = jnp.clip(out, 0.0, 1.0) ** jnp.exp(
-        jax.random.uniform(keys[1], (), minval=-log_g, maxval=log_g)
-    )
-    factor = jax.random.uniform(keys[2], (), minval=1 - cfg.contrast, maxval=1 + cfg.contrast)
+    out = jnp.clip(out, 0.0, 1.0) ** jnp.exp(between(0, -log_g, log_g))
+    factor = between(1, 1 - cfg.contrast, 1 + cfg.contrast)
     out = (out - jnp.mean(out)) * factor + jnp.mean(out)
-    out = out + jax.random.uniform(keys[3], (), minval=-cfg.brightness, maxval=cfg.brightness)
+    out = out + between(2, -cfg.brightness, cfg.brightness)
     padded = jnp.pad(out, 1, mode="edge")
     blurred = sum(padded[dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)) / 9
-    out = jnp.where(jax.random.bernoulli(keys[4], cfg.blur), blurred, out)
-    start = jax.random.randint(keys[5], (), 0, w)
-    width = jax.random.randint(keys[6], (), w // 16, w // 4 + 1)
-    band = (jnp.arange(w) >= start) & (jnp.arange(w) < start + width)
-    dark = jax.random.uniform(keys[7], (), minval=0.4, maxval=0.8)
-    shadowed = jnp.where(band[None, :], out * dark, out)
-    out = jnp.where(jax.random.bernoulli(keys[8], cfg.shadow), shadowed, out)
-    out = out + cfg.noise * jax.random.normal(jax.random.fold_in(key, 1), out.shape)
+    out = jnp.where(u[3] < cfg.blur, blurred, out)
+    start = jnp.floor(u[4] * w)
+    width = jnp.floor(between(5, w // 16, w // 4 + 1))
+    columns = jnp.arange(w)
+    band = (columns >= start) & (columns < start + width)
+    shadowed = jnp.where(band[None, :], out * between(6, 0.4, 0.8), out)
+    out = jnp.where(u[7] < cfg.shadow, shadowed, out)
+    out = out + cfg.noise * jax.random.normal(noise_key, out.shape)
     return jnp.clip(out, 0.0, 1.0)
 
 
