@@ -105,8 +105,11 @@ def _write_run(
     ds: int,
     top: TopK,
     ev: Evaluation,
+    start: Evaluation | None = None,
 ) -> None:
-    """The cell's TensorBoard run, written aside and moved into place whole."""
+    """The cell's TensorBoard run, written aside and moved into place whole (``start``: a
+    trained model's start on the same queries, whose correctness curve.npz keeps as
+    ``start_correct``)."""
     staging = logdir / INCOMPLETE / name
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
@@ -144,6 +147,7 @@ def _write_run(
         best_scores=ev.best_scores,
         best_correct=ev.best_correct,
         has_match=ev.has_match,
+        **({} if start is None else {"start_correct": start.best_correct}),
     )
     replace_folder(staging, logdir / name)
 
@@ -225,6 +229,7 @@ def save_cell(
     ds: int,
     top: TopK,
     val_top: TopK | None,
+    start_top: TopK | None = None,
 ) -> ResultRow:
     """Evaluate the matches of ``desc``'s ``cell``-th part (``top``: the test queries',
     ``val_top``: the validation queries', None when the descriptors have none: NaN
@@ -244,7 +249,10 @@ def save_cell(
         seed=cfg.seed,
         pr_convention=cfg.pr_convention,
     )
-    _write_run(logdir, name, cfg, pair, desc, cell, ds, top, ev)
+    start = None
+    if start_top is not None:  # a trained model's start, on the same queries
+        start = evaluate_matches(*start_top, pair.truth, pr_convention=cfg.pr_convention)
+    _write_run(logdir, name, cfg, pair, desc, cell, ds, top, ev, start)
     row = ResultRow(
         **_what_was_measured(pair, desc),
         method=desc.method,

@@ -260,7 +260,13 @@ def describe_fit(fit: Fit, parts: tuple[Served, ...], run: PairRun) -> Iterator[
         return
     for part, report in zip(parts, reports, strict=True):
         encode = _encoder(fit, state, part.values)
-        yield _describe(fit, (part,), [report], (0,), encode, seconds, run)
+        desc = _describe(fit, (part,), [report], (0,), encode, seconds, run)
+        if report.start_state is not None:  # a trained model that left its start
+            start_db, start_query, _ = encode_pair(
+                _encoder(fit, report.start_state, part.values), run.data
+            )
+            desc = desc._replace(start_db=start_db, start_query=start_query)
+        yield desc
 
 
 def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Descriptors:

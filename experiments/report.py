@@ -73,7 +73,10 @@ def report_steps(logdir: Path, cfg: SweepConfig, rows: list[ResultRow]) -> dict[
         "results.md": lambda: atomic_write_text(
             logdir / "results.md",
             markdown_table(
-                rows, *differences_to_baseline(rows, curve, cfg), same_models(rows, curve)
+                rows,
+                *differences_to_baseline(rows, curve, cfg),
+                same_models(rows, curve),
+                differences_to_start(rows, curve, cfg),
             ),
         ),
         f"the {SUMMARY} runs": lambda: write_tb_summaries(logdir, main, curve, cfg),
@@ -296,6 +299,33 @@ def differences_to_baseline(
     return out, baseline
 
 
+def differences_to_start(
+    rows: list[ResultRow], curve: Curves, cfg: SweepConfig
+) -> dict[str, Difference]:
+    """Per selected row of a trained method (by run): its recall@1 minus its start's (the
+    untouched starting weights) on the same queries, paired as ``differences_to_baseline``;
+    exactly 0 for a model kept at its start (it is its start). Cells saved without their
+    start's matches are left out."""
+    out = {}
+    for row in selected_rows(rows):
+        if row.kept_epoch is None:
+            continue
+        if row.kept_epoch == 0:
+            out[row.run] = Difference(0.0, 0.0, 0.0)
+            continue
+        arrays = curve(row.run)
+        if "start_correct" not in arrays:
+            continue
+        out[row.run] = paired_recall_difference(
+            arrays["best_correct"],
+            arrays["start_correct"],
+            block_length=block_length(cfg, row.ds),
+            resamples=cfg.bootstrap.resamples,
+            seed=cfg.seed,
+        )
+    return out
+
+
 # ---------------------------------------------------------------------------- results.md
 
 CELL_COLUMNS = (
@@ -368,6 +398,7 @@ def markdown_table(
     differences: dict[str, Difference] | None = None,
     baseline: str | None = None,
     same_models: list[list[ResultRow]] = (),
+    to_start: dict[str, Difference] | None = None,
 ) -> str:
     """results.md: the validation-selected setting per method (recall@1 and AUC-PR with
     their 95% intervals, what decided the choice, and the paired difference to the
@@ -406,6 +437,7 @@ def markdown_table(
         *_same_models(same_models),
         "",
         *_seed_spread(rows, differences or {}, base),
+        *_against_start(rows, to_start or {}),
         *_learning_curves(rows),
         "## Best setting per method, chosen on the test queries (optimistic)",
         "",
@@ -576,19 +608,27 @@ def _learning_curves(rows: list[ResultRow]) -> list[str]:
     places = sorted({training_places(r) for r in best})
     table: dict[tuple, dict[int, list[ResultRow]]] = {}
     for r in _in_order(best):
-        key = (r.season_pair, r.method, r.objective, plain_setting(r))
+        key = (r.season_pair, r.method, r.objective)
         table.setdefault(key, {}).setdefault(training_places(r), []).append(r)
 
-    def cell(mine: list[ResultRow] | None) -> str:
+    def cell(mine: list[ResultRow] | None, own_setting: bool) -> str:
         if not mine:
             return ""
-        if len(mine) == 1:
-            r = mine[0]
-            return f"{r.recall_at_1:.3f} {_ci(r.recall_at_1_ci_low, r.recall_at_1_ci_high)}"
-        values = [r.recall_at_1 for r in mine]
-        return f"{float(np.mean(values)):.3f} ({_spread(values)})"
+        start = " (its start)" if all(r.kept_epoch == 0 for r in mine) else ""
+        if len(mine) > 1:  # seeds
+            values = [r.recall_at_1 for r in mine]
+            return f"{float(np.mean(values)):.3f} ({_spread(values)}){start}"
+        r = mine[0]
+        text = f"{r.recall_at_1:.3f} {_ci(r.recall_at_1_ci_low, r.recall_at_1_ci_high)}{start}"
+        return f"{text}, {plain_setting(r)}" if own_setting and plain_setting(r) else text
 
-    body = [[*key[:3], key[3], *(cell(v.get(p)) for p in places)] for key, v in table.items()]
+    body = []
+    for key, by_places in table.items():
+        # the setting validation chose: in its column when one for every value, else per cell
+        chosen = {plain_setting(r) for rs in by_places.values() for r in rs}
+        one = chosen.pop() if len(chosen) == 1 else ""
+        cells = (cell(by_places.get(p), own_setting=not one) for p in places)
+        body.append([*key, one, *cells])
     head = ("season_pair", "method", "objective", "setting", *(f"{p} places" for p in places))
     return [
         "## Learning curves",
@@ -601,6 +641,44 @@ def _learning_curves(rows: list[ResultRow]) -> list[str]:
         "them.",
         "",
         *_markdown(head, body),
+        "",
+    ]
+
+
+def _against_start(rows: list[ResultRow], to_start: dict[str, Difference]) -> list[str]:
+    """results.md's trained-against-start table: per selected row of a trained method, the
+    epoch it kept, its recall@1 and its start's, and the paired difference."""
+    trained = [r for r in _in_order(selected_rows(rows)) if r.run in to_start]
+    if not trained:
+        return []
+    body = []
+    for r in trained:
+        d = to_start[r.run]
+        body.append(
+            [
+                r.season_pair,
+                r.method,
+                r.objective,
+                r.setting,
+                str(r.seed),
+                f"{r.kept_epoch} of {r.epochs_trained}",
+                f"{r.recall_at_1:.3f}",
+                f"{r.recall_at_1 - d.value:.3f}",
+                "0 (the start itself)"
+                if r.kept_epoch == 0
+                else f"{d.value:+.3f} [{d.low:+.3f}, {d.high:+.3f}] ({d.label})",
+            ]
+        )
+    head = ("season_pair", "method", "objective", "setting", "seed", "kept epoch")
+    return [
+        "## Trained against their start",
+        "",
+        "recall@1 of each trained method's kept model and of its start (the starting "
+        "weights, untouched by training) on the same queries, and their paired difference "
+        "with its 95% block-bootstrap interval: what training added. A model kept at its "
+        "start is its start.",
+        "",
+        *_markdown((*head, "recall_at_1", "start's recall_at_1", "- start [95% CI]"), body),
         "",
     ]
 
@@ -631,13 +709,18 @@ def _same_models(groups: list[list[ResultRow]]) -> list[str]:
     """A line per group of selected rows that are one model: identical scores and matches
     on every query."""
     lines = []
+    several_seeds = len({r.seed for group in groups for r in group}) > 1
     for group in groups:
         named = ", ".join(f"{r.method} {r.objective}".rstrip() for r in group)
         at_start = all(r.kept_epoch == 0 for r in group) and len({r.start for r in group}) == 1
         why = f", all kept at their start ({group[0].start})" if at_start else ""
-        lines.append(
-            f"{group[0].season_pair}: {named} score every query identically: one model{why}."
-        )
+        places = {training_places(r) for r in group}
+        where = group[0].season_pair
+        if places != {None}:  # a learning curve's point
+            where += f" at train_places={'/'.join(str(p) for p in sorted(places, key=str))}"
+        if several_seeds:
+            where += f" seed {group[0].seed}"
+        lines.append(f"{where}: {named} score every query identically: one model{why}.")
     return ["", *lines] if lines else []
 
 

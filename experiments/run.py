@@ -253,8 +253,20 @@ def _save_descriptors(
         for ds in cfg.sequence_lengths:
             if run_name(data.name, p.run, ds) not in todo:
                 continue
+            start = None
+            if desc.start_query is not None:  # a trained model's start, same queries
+                of_start = desc._replace(db=desc.start_db, query=desc.start_query)
+                start = match(of_start, data, ds, (desc.starts[cell],), cfg, mesh)[0]
             row = save_cell(
-                out, cfg, data, desc, cell, ds, matches(cell, ds, "test"), matches(cell, ds, "val")
+                out,
+                cfg,
+                data,
+                desc,
+                cell,
+                ds,
+                matches(cell, ds, "test"),
+                matches(cell, ds, "val"),
+                start_top=start,
             )
             yield row, warning
             warning = None

@@ -6,6 +6,7 @@ evenly, the validation and test places unchanged, every value its own rows, draw
 logged as a learning curve, resumed and extended like any axis."""
 
 import csv
+import re
 import shutil
 from pathlib import Path
 
@@ -137,6 +138,34 @@ def test_a_model_training_improved_keeps_its_epoch_of_best_validation_recall(cur
         assert encoders["fae", "reconstruct", row.setting]["kept_epoch"] == str(row.kept_epoch)
     md = (logdir / "results.md").read_text()
     assert "(its start" not in md and "Kept at their start" not in md
+
+
+def test_a_trained_model_is_compared_with_its_start_on_the_same_queries(curve, kept):
+    """results.md's trained-against-start table: the FAEs of the learning curve left their
+    drawn start, whose recall@1 is what the same drawn weights score untrained (the kept
+    sweep's FAE, which no step could move, on the same test queries); the paired difference
+    is the mean of the per-query differences, its interval around it. A model kept at its
+    start is its start: 0."""
+    logdir, _ = curve
+    untrained = {
+        r.objective: r for r in read_results(kept[0] / "results.csv") if r.method == "fae"
+    }["reconstruct"]
+    md = (logdir / "results.md").read_text()
+    assert "## Trained against their start" in md
+    table = md.split("## Trained against their start")[1].split("\n## ")[0]
+    for row in (r for r in read_results(logdir / "results.csv") if r.method == "fae"):
+        with np.load(logdir / row.run / "curve.npz") as z:
+            start, mine = z["start_correct"], z["best_correct"]
+        assert start.mean() == pytest.approx(untrained.recall_at_1, abs=1e-9)
+        line = next(ln for ln in table.splitlines() if f"| {row.setting} |" in ln)
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert cells[5] == f"{row.kept_epoch} of {row.epochs_trained}"
+        assert float(cells[7]) == pytest.approx(untrained.recall_at_1, abs=5e-4)
+        value, low, high = (float(x) for x in re.findall(r"[-+]\d\.\d{3}", cells[8]))
+        assert value == pytest.approx(mine.mean() - start.mean(), abs=5e-4)
+        assert low <= value <= high
+    kept_md = (kept[0] / "results.md").read_text()
+    assert kept_md.count("0 (the start itself)") == 2  # both objectives' FAE
 
 
 def _route(n: int) -> Route:

@@ -329,6 +329,8 @@ class ModelState:
     image_shape: tuple[int, int] = dataclasses.field(metadata={"static": True})
     kept_epoch: Array | None = None  # () int: the epoch whose parameters these are (0: the
     # start, untouched by training); None: a state saved before 2026-12-05
+    start_params: dict | None = None  # a model that kept a later epoch: its starting
+    # weights, for the paired comparison with its start; None: kept at its start
 
 
 def encode_state(state: ModelState, images: Float[Array, "n h w ..."]) -> Float[Array, "n code"]:

@@ -83,6 +83,7 @@ class TrainResult(NamedTuple):
     restored: bool  # a finished model was restored from its checkpoint, not trained
     resumed_epoch: int  # epoch training resumed after (0: from scratch)
     train_seconds: float  # training time, summed over every session that trained it
+    start_params: dict | None = None  # the starting weights (epoch 0), untouched by training
 
 
 class TrainingLog(Protocol):
@@ -589,7 +590,9 @@ def fit_autoencoder(spec: ae.Spec, data: TrainingData, options: TrainOptions) ->
     meta = checkpoint_meta(spec, shape, o.identity, o.objective, selected_by)
     state, saved = init_or_restore(fresh, o.checkpoint_dir, meta, o.log, o.name)
     if saved is not None and saved["done"]:
-        return _result(trainer, state, selected_by, saved["stopped_early"], restored=True)
+        return _result(
+            trainer, state, selected_by, saved["stopped_early"], restored=True, start=fresh.params
+        )
     resumed_epoch, spent = state.epoch, state.seconds
     check_batch_splits(trainer.batch_size, sharding.mesh_size(o.mesh))
     train_dev, state = _on_devices(train_images, state, o.mesh)
@@ -608,7 +611,14 @@ def fit_autoencoder(spec: ae.Spec, data: TrainingData, options: TrainOptions) ->
             last_save = time.perf_counter()
         if done:
             break
-    return _result(trainer, state, selected_by, stopped_early, resumed_epoch=resumed_epoch)
+    return _result(
+        trainer,
+        state,
+        selected_by,
+        stopped_early,
+        resumed_epoch=resumed_epoch,
+        start=fresh.params,
+    )
 
 
 def _image_shape(examples: np.ndarray, objective: str) -> tuple[int, int]:
@@ -628,9 +638,10 @@ def _result(
     *,
     restored: bool = False,
     resumed_epoch: int | None = None,
+    start: dict | None = None,
 ) -> TrainResult:
     """What training gives back: the best parameters and the counters of ``state``; a
-    restored model resumed after its last epoch."""
+    restored model resumed after its last epoch; ``start``: the starting weights."""
     return TrainResult(
         graphdef=trainer.graphdef,
         params=state.best_params,
@@ -644,4 +655,5 @@ def _result(
         restored=restored,
         resumed_epoch=state.epoch if resumed_epoch is None else resumed_epoch,
         train_seconds=state.seconds,
+        start_params=start,
     )

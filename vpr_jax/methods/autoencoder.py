@@ -242,4 +242,9 @@ def report(
         kept_epoch=kept,
         epochs_trained=int(state.epochs),
         start=start_name(settings["init"], units),
+        start_state=None
+        if state.start_params is None
+        else dataclasses.replace(
+            state, params=state.start_params, start_params=None, kept_epoch=np.int32(0)
+        ),
     )

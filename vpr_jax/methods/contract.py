@@ -67,6 +67,8 @@ class Report(NamedTuple):
     # start, untouched by training); None: the fit does not train
     epochs_trained: int | None = None  # a trained fit: the epochs it trained
     start: str = ""  # a trained fit: what it started from, e.g. "lda in 256 directions"
+    start_state: Any = None  # a trained fit that kept a later epoch: its start as a state
+    # ``encode`` takes, scored on the same queries (results.md's trained-against-start)
 
 
 class TrainingSet(NamedTuple):

@@ -52,6 +52,8 @@ class Descriptors(NamedTuple):
     basis: tuple[np.ndarray | None, ...] = ()  # per part: (m, 32, 64) images of what the
     basis_name: str = "basis"  # method removed or learned; TensorBoard tag basis/<name>
     warning: str | None = None  # one line for the run log (non-convergence, degenerate)
+    start_db: jax.Array | None = None  # a trained fit that kept a later epoch: its start's
+    start_query: jax.Array | None = None  # descriptors (one part), for the paired comparison
 
 
 def timed(fn: Callable, *args):

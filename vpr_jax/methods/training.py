@@ -80,6 +80,9 @@ def fit_model(
         spec=spec,
         image_shape=tuple(int(s) for s in train.shape[1:3]),
         kept_epoch=np.int32(result.best_epoch),
+        start_params=None
+        if result.best_epoch == 0 or result.start_params is None
+        else jax.tree.map(sharding.to_host, result.start_params),
     )
 
 

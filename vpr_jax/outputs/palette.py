@@ -17,7 +17,13 @@ from vpr_jax.outputs.results import ResultRow, natural_order, plain_setting
 
 # tensorboardColorBlindAssist, the palette of TensorBoard's SCALARS and PR CURVES dashboards
 TB_PALETTE = ("#ff7043", "#0077bb", "#cc3311", "#33bbee", "#ee3377", "#009988", "#bbbbbb")
-_OBJECTIVE_ORDER = ("", "reconstruct", "cross_season", "contrastive")
+_OBJECTIVE_ORDER = ("", "reconstruct", "cross_season", "contrastive", "augment_contrastive")
+
+
+def curve_label(row: ResultRow) -> str:
+    """A results row's method and objective, whatever setting validation chose: a learning
+    curve's line (``pca``, ``fae_contrastive``), one across every training places value."""
+    return model_label(row.method, row.objective, "")
 
 
 def label_of(row: ResultRow) -> str:
@@ -34,19 +40,20 @@ def _rank(row: ResultRow) -> tuple:
     return method, row.method, objective, row.objective, natural_order(row.setting)
 
 
-def compare_labels(rows: list[ResultRow]) -> list[str]:
+def compare_labels(rows: list[ResultRow], label=label_of) -> list[str]:
     """Every label of ``rows`` once, in the method table's order (users' methods and outside
     sets after the built-in ones, by name; the seed's objective first)."""
-    return list(dict.fromkeys(label_of(r) for r in sorted(rows, key=_rank)))
+    return list(dict.fromkeys(label(r) for r in sorted(rows, key=_rank)))
 
 
-def styles(rows: list[ResultRow]) -> dict[str, dict]:
+def styles(rows: list[ResultRow], label=label_of) -> dict[str, dict]:
     """label -> matplotlib line style: TensorBoard's colour of its compare run, dashed
-    after the palette's seventh."""
+    after the palette's seventh (``label``: what names a line, ``label_of`` or
+    ``curve_label``)."""
     return {
-        label: {
+        name: {
             "color": TB_PALETTE[i % len(TB_PALETTE)],
             "linestyle": "-" if i < len(TB_PALETTE) else "--",
         }
-        for i, label in enumerate(compare_labels(rows))
+        for i, name in enumerate(compare_labels(rows, label))
     }

@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vpr_jax.files import atomic_open  # noqa: E402
-from vpr_jax.outputs.palette import label_of, styles  # noqa: E402
+from vpr_jax.outputs.palette import curve_label, label_of, styles  # noqa: E402
 from vpr_jax.outputs.results import (  # noqa: E402
     ResultRow,
     best_objectives,
@@ -169,17 +169,18 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
 def learning_curves_figure(rows: list[ResultRow], path: Path):
     """One panel per season pair: recall@1 against the training places a method was fitted
     on (``split.train_places``, log scale), a line per method at its validation-selected
-    setting for each value (single images; several seeds: their mean)."""
+    setting for each value, whichever it is (single images; several seeds: their mean);
+    the legend beside the last panel."""
     shortest = min(r.ds for r in rows)
     best = [r for r in selected_rows(rows) if r.ds == shortest and training_places(r) is not None]
     pairs = list(dict.fromkeys(r.season_pair for r in best))  # sweep order
-    style = styles(best)
-    fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
+    style = styles(best, curve_label)
+    fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs) + 2, 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
         for method, line in style.items():
             by_places: dict[int, list[ResultRow]] = {}
             for r in best:
-                if r.season_pair == pair and label_of(r) == method:
+                if r.season_pair == pair and curve_label(r) == method:
                     by_places.setdefault(training_places(r), []).append(r)
             points = sorted((p, _mean(r, "recall_at_1")) for p, r in by_places.items())
             if points:
@@ -195,5 +196,5 @@ def learning_curves_figure(rows: list[ResultRow], path: Path):
         ax.set_xticks(ticks, [str(t) for t in ticks])
         ax.minorticks_off()
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="lower right")
+    axes[0][-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     _save(fig, path)
