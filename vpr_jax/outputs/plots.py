@@ -138,6 +138,19 @@ def correct_matches_figure(rows: list[ResultRow], path: Path):
     _save(fig, path)
 
 
+def _recall_lines(ax, rows, pair: str, style: dict, label: Callable, x: Callable) -> None:
+    """A line on ``ax`` per ``style`` label: the mean recall@1 (over seeds) of ``pair``'s
+    ``rows`` of that label at each value of ``x(row)``."""
+    for name, line in style.items():
+        by_x: dict[int, list[ResultRow]] = {}
+        for r in rows:
+            if r.season_pair == pair and label(r) == name:
+                by_x.setdefault(x(r), []).append(r)
+        points = sorted((v, _mean(mine, "recall_at_1")) for v, mine in by_x.items())
+        if points:
+            ax.plot(*zip(*points, strict=True), marker="o", label=name, **line)
+
+
 def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
     """One panel per season pair: recall@1 against the sequence length ds, a line per method
     (PCA and ICA at their validation-selected removed-PC count for each ds, as in results.md)."""
@@ -146,14 +159,7 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
     style = styles(rows)
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
-        for method, line in style.items():
-            by_ds: dict[int, list[ResultRow]] = {}
-            for r in best:
-                if r.season_pair == pair and label_of(r) == method:
-                    by_ds.setdefault(r.ds, []).append(r)
-            points = sorted((ds, _mean(r, "recall_at_1")) for ds, r in by_ds.items())
-            if points:
-                ax.plot(*zip(*points, strict=True), marker="o", label=method, **line)
+        _recall_lines(ax, best, pair, style, label_of, lambda r: r.ds)
         ax.set(
             title=pair,
             xlabel="sequence length ds (frames)",
@@ -177,14 +183,7 @@ def learning_curves_figure(rows: list[ResultRow], path: Path):
     style = styles(best, curve_label)
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs) + 2, 3.8), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
-        for method, line in style.items():
-            by_places: dict[int, list[ResultRow]] = {}
-            for r in best:
-                if r.season_pair == pair and curve_label(r) == method:
-                    by_places.setdefault(training_places(r), []).append(r)
-            points = sorted((p, _mean(r, "recall_at_1")) for p, r in by_places.items())
-            if points:
-                ax.plot(*zip(*points, strict=True), marker="o", label=method, **line)
+        _recall_lines(ax, best, pair, style, curve_label, training_places)
         ax.set(
             title=pair,
             xlabel="training places a season (log scale)",
