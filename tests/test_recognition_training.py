@@ -318,6 +318,38 @@ def test_start_decay_adds_its_pull_towards_the_start_to_the_gradient(seasons):
     np.testing.assert_allclose(float(start_penalty(params, anchor)), distance / 2, rtol=1e-5)
 
 
+def test_a_scale_update_leaves_the_start_and_trains_only_a_scale_and_shift_per_unit(seasons):
+    """``fae.update=scale``: the model codes as the plain FAE with the same hidden layer
+    (numpy: relu(x W + b) of the standardised images) until trained; contrastive steps then
+    move each unit's scale and shift and leave the hidden layer's weights and biases at
+    their start to the bit (the decoder is no part of the code and trains as it would)."""
+    from vpr_jax.encoders.train import make_optimizer, make_train_step
+
+    spec = ae.FAESpec(hidden=8, standardise=True, update="scale")
+    graphdef, params = ae.build(spec, jax.random.key(0))
+    a, b = (np.asarray(s[:16], np.float32) for s in seasons)
+    x = a.reshape(len(a), -1)
+    x = 0.25 * (x - x.mean(axis=1, keepdims=True)) / (x.std(axis=1, keepdims=True) + 1e-3)
+    kernel, bias = (np.asarray(params["encoder"][k]) for k in ("kernel", "bias"))
+    np.testing.assert_allclose(
+        np.asarray(ae.make_encode(graphdef)(params, a)),
+        np.maximum(x @ kernel + bias, 0),
+        atol=1e-4,
+    )
+    tx = make_optimizer(TrainConfig(augment=False, learning_rate=0.01), ae.frozen(spec))
+    step = make_train_step(graphdef, tx, None, None, "contrastive", 0.1, 0, 0.0)
+    state, batch = (params, tx.init(params)), jnp.asarray(np.stack([a, b], axis=1))
+    for i in range(3):
+        *state, _ = step(*state, batch, jax.random.key(i), jnp.arange(16), None)
+    trained = state[0]
+    for k in ("kernel", "bias"):
+        np.testing.assert_array_equal(
+            np.asarray(trained["encoder"][k]), np.asarray(params["encoder"][k])
+        )
+    for k in ("unit_scale", "unit_shift"):
+        assert not np.allclose(np.asarray(trained[k]), np.asarray(params[k]))
+
+
 def test_a_cae_started_at_lda_leads_with_the_fae_start_and_keeps_its_convolutions_alive(seasons):
     """The CAE's linear branch, started at lda, codes as an FAE of as many units started
     there (the FAE's start has its numpy oracle above); the conv code is the drawn one

@@ -46,6 +46,18 @@ class FAESpec(NamedTuple):
     centre: float = 0.5  # subtracted from every pixel before the hidden layer (0: the seed's)
     standardise: bool = False  # each image to zero mean and std 1/4 first (centre unused)
     removed: int = 0  # leading principal components taken out of every image first (Removal)
+    # all: every weight trains; scale: the hidden layer's weights and biases stay at their
+    # start and a per-unit scale and shift (2 x hidden numbers) train on top of it
+    update: str = "all"
+
+
+UPDATES = ("all", "scale")
+
+
+def frozen(spec) -> tuple[str, ...]:
+    """The params entries of a model that training leaves at their start (``FAESpec.update
+    = "scale"``: the hidden layer); the optimizer gives them no steps."""
+    return ("encoder",) if getattr(spec, "update", "all") == "scale" else ()
 
 
 class CAESpec(NamedTuple):
@@ -137,6 +149,10 @@ class FAE(nnx.Module, _Residual):
         self.encoder = nnx.Linear(n_pixels, spec.hidden, rngs=rngs)
         self.decoder = nnx.Linear(spec.hidden, n_pixels, rngs=rngs)
         self._init_removal(spec.removed, n_pixels)
+        self.scaled = spec.update == "scale"
+        if self.scaled:  # code = relu(scale * (x W + b) + shift): the start at 1 and 0
+            self.unit_scale = nnx.Param(jnp.ones((spec.hidden,)))
+            self.unit_shift = nnx.Param(jnp.zeros((spec.hidden,)))
 
     def inputs(self, images: Float[Array, "n h w"]) -> Float[Array, "n pixels"]:
         """What the hidden layer multiplies: the (residual) image, flattened, standardised
@@ -145,7 +161,10 @@ class FAE(nnx.Module, _Residual):
         return standardise(x) if self.standardise else x - self.centre
 
     def encode(self, images: Float[Array, "n h w"]) -> Float[Array, "n code"]:
-        return nnx.relu(self.encoder(self.inputs(images)))
+        pre = self.encoder(self.inputs(images))
+        if self.scaled:
+            pre = pre * self.unit_scale[...] + self.unit_shift[...]
+        return nnx.relu(pre)
 
     def __call__(self, images: Float[Array, "n h w"]) -> Float[Array, "n h w"]:
         return nnx.sigmoid(self.decoder(self.encode(images))).reshape(images.shape)

@@ -139,15 +139,24 @@ class TrainOptions(NamedTuple):
     start: Start | None = None  # other starting weights (ae.pca_start; name it in identity)
 
 
-def make_optimizer(settings: TrainConfig) -> optax.GradientTransformation:
-    return _optimizer(settings.optimizer, settings.learning_rate)
+def make_optimizer(
+    settings: TrainConfig, frozen: tuple[str, ...] = ()
+) -> optax.GradientTransformation:
+    """``settings``' optimizer; the params entries named in ``frozen`` get no steps."""
+    return _optimizer(settings.optimizer, settings.learning_rate, frozen)
 
 
 @functools.lru_cache(maxsize=32)  # the same object for the same settings: see make_train_step
-def _optimizer(name: str, learning_rate: float) -> optax.GradientTransformation:
+def _optimizer(
+    name: str, learning_rate: float, frozen: tuple[str, ...] = ()
+) -> optax.GradientTransformation:
     if name not in OPTIMIZERS:
         raise ValueError(f"unknown optimizer {name!r}: use {', '.join(OPTIMIZERS)}")
-    return OPTIMIZERS[name](learning_rate)
+    tx = OPTIMIZERS[name](learning_rate)
+    if not frozen:
+        return tx
+    labels = lambda params: {k: "frozen" if k in frozen else "trained" for k in params}  # noqa: E731
+    return optax.multi_transform({"trained": tx, "frozen": optax.set_to_zero()}, labels)
 
 
 @functools.lru_cache(maxsize=32)  # per architecture: season pairs share compilations
@@ -310,7 +319,7 @@ def make_trainer(
         params = ae.with_removal(params, fixed["removal_mean"], fixed["removal_basis"])
     if start is not None:
         params = start(graphdef, params)
-    tx = make_optimizer(settings)
+    tx = make_optimizer(settings, ae.frozen(spec))
     per_step = max(1, settings.batch_size // objectives.examples_per_image(objective))
     batch_size = min(per_step, n_train)
     augment = augment_config(settings.augment)

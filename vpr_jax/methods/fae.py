@@ -38,11 +38,19 @@ class Settings(autoencoder.TrainingSettings):
     # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
     input_centre: float = 0.5
     standardise: bool = True  # each image to zero mean, std 1/4 instead (input_centre unused)
+    # all: every weight trains; scale: the hidden layer stays at its start (init) and only
+    # a scale and a shift per unit train on top of it: 2 x hidden numbers that cannot
+    # memorise the places (a list: an axis, validation chooses)
+    update: str = "all"
 
     def __post_init__(self):
         autoencoder.check_common("fae", self)
         checks = (
             (self.hidden >= 1, f"fae.hidden={self.hidden} must be >= 1"),
+            (
+                self.update in ae.UPDATES,
+                f"fae.update={self.update} is unknown: use {' or '.join(ae.UPDATES)}",
+            ),
             (
                 0 <= self.input_centre <= 1,
                 f"fae.input_centre={self.input_centre} is not a grey level in [0, 1]: use "
@@ -63,6 +71,7 @@ def _model(train, aligned, s: dict) -> autoencoder.Model:
             centre=s["input_centre"],
             standardise=s["standardise"],
             removed=removed,
+            update=s["update"],
         ),
         start=autoencoder.start_of(s["init"], train, aligned),
     )
