@@ -65,7 +65,8 @@ class PairRun(NamedTuple):
     out: Path  # where this process writes TensorBoard runs
     log: Log
     mesh: Mesh | None
-    shared: dict  # the pair's shared PCA fit, once made: {"pca_fit": PCAFit}
+    shared: dict  # the pair's shared PCA fits, once made, by settings and training places;
+    # and the pair thinned to each ``split.train_places`` value, once made
 
 
 def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
@@ -98,8 +99,13 @@ def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
 
 def fitted_on(fit: Fit, run: PairRun) -> PairData:
     """The pair as the fit sees it: its training places thinned to ``split.train_places``
-    (the validation and test places as they are)."""
-    return with_train_places(run.data, fit.train_places)
+    (the validation and test places as they are), made once per value."""
+    if fit.train_places is None:
+        return run.data
+    key = ("train_places", fit.train_places)
+    if key not in run.shared:
+        run.shared[key] = with_train_places(run.data, fit.train_places)
+    return run.shared[key]
 
 
 def fit_key(method, settings: Any) -> str:
