@@ -214,6 +214,13 @@ def pytest_configure(config):
       processes as there are cores, each starting sweeps of its own, and thread pools
       sized for the whole machine then spin against each other (the suite took 4 min 40 s
       on 2 cores with them, 4 min 15 s without);
+    - XLA's CPU code generated without LLVM's optimisation passes
+      (``--xla_backend_optimization_level=0``): the suite's programs are tiny and most of
+      their time was compiling them; the same computations, rounded as the unoptimised code
+      rounds them (no check here depends on the last bits: oracles have tolerances, and runs
+      compared with each other run under the same flags). The suite took 6 min 22 s with
+      full optimisation, 5 min 19-22 s without (2 cores, 2026-12-05). JAX looks for no
+      accelerator (``JAX_PLATFORMS=cpu`` unless set);
     - one cache of XLA's compiled programs for the session: the suite's many small sweeps
       compile the same programs, and reading them back halves each sweep's time. The
       folder is deleted when the session ends. JAX writes an entry without a lock; an entry
@@ -232,7 +239,13 @@ def pytest_configure(config):
         f"ignore:Error {verb} persistent compilation cache entry" for verb in ("reading", "writing")
     ]
     os.environ.update(
-        XLA_FLAGS=extended("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false", sep=" "),
+        XLA_FLAGS=extended(
+            "XLA_FLAGS",
+            "--xla_cpu_multi_thread_eigen=false",
+            "--xla_backend_optimization_level=0",
+            sep=" ",
+        ),
+        JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS") or "cpu",
         OPENBLAS_NUM_THREADS="1",
         OMP_NUM_THREADS="1",
         JAX_COMPILATION_CACHE_DIR=folder,
