@@ -215,12 +215,14 @@ def pytest_configure(config):
       sized for the whole machine then spin against each other (the suite took 4 min 40 s
       on 2 cores with them, 4 min 15 s without);
     - XLA's CPU code generated without LLVM's optimisation passes
-      (``--xla_backend_optimization_level=0``): the suite's programs are tiny and most of
-      their time was compiling them; the same computations, rounded as the unoptimised code
-      rounds them (no check here depends on the last bits: oracles have tolerances, and runs
-      compared with each other run under the same flags). The suite took 6 min 22 s with
-      full optimisation, 5 min 19-22 s without (2 cores, 2026-12-05). JAX looks for no
-      accelerator (``JAX_PLATFORMS=cpu`` unless set);
+      (``--xla_backend_optimization_level=0``) and by XLA's older fusion code generator,
+      which compiles in half the time of the MLIR one (``--xla_cpu_use_fusion_emitters=false``):
+      the suite's programs are tiny and most of their time was compiling them; the same
+      computations, rounded as that code rounds them (no check here depends on the last
+      bits: oracles have tolerances, and runs compared with each other run under the same
+      flags). The suite took 6 min 22 s with XLA's defaults, 5 min 19-22 s without LLVM's
+      passes, 4 min 12 s with the older generator as well (2 cores, 2026-12-05). JAX looks
+      for no accelerator (``JAX_PLATFORMS=cpu`` unless set);
     - one cache of XLA's compiled programs for the session: the suite's many small sweeps
       compile the same programs, and reading them back halves each sweep's time. The
       folder is deleted when the session ends. JAX writes an entry without a lock; an entry
@@ -243,6 +245,7 @@ def pytest_configure(config):
             "XLA_FLAGS",
             "--xla_cpu_multi_thread_eigen=false",
             "--xla_backend_optimization_level=0",
+            "--xla_cpu_use_fusion_emitters=false",
             sep=" ",
         ),
         JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS") or "cpu",
