@@ -325,15 +325,17 @@ def method_settings(cfg, name: str):
 
 def suffix_cosine(query_desc, db_desc, starts: tuple[int, ...]):
     """Cosine similarity on descriptor suffixes ``[start:]`` for every start, (s, nq, ndb),
-    from the one pass the matcher makes (``matching._suffix_dots``): what the tests compare
+    from the one pass the matcher makes (``matching.suffix_dots``): what the tests compare
     with the cosine of each suffix on its own."""
     import jax.numpy as jnp
 
-    from vpr_jax.evaluation.matching import _suffix_dots
+    from vpr_jax.evaluation.matching import suffix_dots, suffixes
 
     scores = {
         i: dot * inv_q[:, None] * inv_db[None, :]
-        for i, dot, inv_q, inv_db in _suffix_dots(query_desc, db_desc, starts)
+        for i, dot, inv_q, inv_db in suffix_dots(
+            suffixes(query_desc, starts), suffixes(db_desc, starts)
+        )
     }
     return jnp.stack([scores[i] for i in range(len(starts))])
 

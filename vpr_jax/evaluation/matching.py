@@ -25,6 +25,7 @@ import functools
 import math
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -63,6 +64,13 @@ def score_budget() -> int:
     return last_level_cache_bytes() // 4 // 4
 
 
+def live_blocks(starts: tuple[int, ...]) -> int:
+    """Score blocks a matching step holds at once: the product's, and with several starts
+    also the running sum and the segment product being added to it (``suffix_dots``); the
+    scores of the starts are ranked one at a time, never stacked."""
+    return 1 if len(starts) == 1 else 3
+
+
 def lane_width(block: int, k: int) -> int:
     """W for ``block_top_k``: the power of two nearest below sqrt(block x k), which balances
     the ranking of the W lane maxima against that of the K x block / W candidates; 0 when
@@ -84,7 +92,28 @@ def cosine_similarity(
     return l2_normalize(query_desc) @ l2_normalize(db_desc).T
 
 
-def _suffix_dots(query_desc, db_desc, starts):
+class Suffixes(NamedTuple):
+    """Descriptors cut at the suffix starts, as the matcher reads them: ``segments[i]`` the
+    features ``[starts[i]:starts[i + 1]]`` of every row (the last runs to the end), and
+    ``inv_norms[i]`` 1 / the norm of the features ``[starts[i]:]``."""
+
+    segments: tuple[Float[Array, "n _"], ...]
+    inv_norms: tuple[Float[Array, " n"], ...]
+
+
+def suffixes(x: Float[Array, "n d"], starts: tuple[int, ...]) -> Suffixes:
+    """``x`` cut at ``starts`` (``Suffixes``). A column slice is a copy, so the matcher cuts
+    each side once, never once per block it meets."""
+    bounds = (*starts, x.shape[1])
+    segments = tuple(x[:, a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True))
+    sq, inv_norms = 0.0, []
+    for seg in reversed(segments):
+        sq = sq + jnp.sum(seg * seg, axis=1)
+        inv_norms.append(1.0 / jnp.maximum(jnp.sqrt(sq), _EPS))
+    return Suffixes(segments, tuple(reversed(inv_norms)))
+
+
+def suffix_dots(query: Suffixes, db: Suffixes):
     """Yield (start index, dot product on features [start:], 1 / query norms, 1 / database
     norms) for every start, last start first; the cosine is ``dot * inv_q[:, None] *
     inv_db[None, :]``.
@@ -93,16 +122,10 @@ def _suffix_dots(query_desc, db_desc, starts):
     the starts backwards adds one thin segment product at a time: every start together costs
     one full product plus one elementwise pass each.
     """
-    bounds = (*starts, query_desc.shape[1])
-    dot = q_sq = db_sq = 0.0
-    for i in reversed(range(len(starts))):
-        q, d = query_desc[:, bounds[i] : bounds[i + 1]], db_desc[:, bounds[i] : bounds[i + 1]]
-        dot = dot + q @ d.T
-        q_sq = q_sq + jnp.sum(q * q, axis=1)
-        db_sq = db_sq + jnp.sum(d * d, axis=1)
-        inv_q = 1.0 / jnp.maximum(jnp.sqrt(q_sq), _EPS)
-        inv_db = 1.0 / jnp.maximum(jnp.sqrt(db_sq), _EPS)
-        yield i, dot, inv_q, inv_db
+    dot = 0.0
+    for i in reversed(range(len(query.segments))):
+        dot = dot + query.segments[i] @ db.segments[i].T
+        yield i, dot, query.inv_norms[i], db.inv_norms[i]
 
 
 def block_top_k(
@@ -147,8 +170,8 @@ def block_top_k(
 
 
 @functools.partial(jax.jit, static_argnames=("k", "block_size", "starts"))
-def _top_k_blocks(
-    query_desc: Float[Array, "nq d"],
+def _top_k_query_blocks(
+    queries: Suffixes,
     db_desc: Float[Array, "ndb d"],
     n_db: Int[Array, ""],
     k: int,
@@ -156,65 +179,65 @@ def _top_k_blocks(
     starts: tuple[int, ...],
     first_index: Int[Array, ""] = 0,
 ):
-    """Running top-K over the database's rows a block at a time; ``first_index`` is the
-    global index of its first row (a device's part of a sharded database starts past 0).
-    Whole blocks are read from ``db_desc`` in place; only a last partial block is padded,
-    because padding the whole database would copy it."""
-    n_starts, nq = len(starts), query_desc.shape[0]
-    init = (
-        jnp.full((n_starts, nq, k), -jnp.inf, query_desc.dtype),
-        jnp.zeros((n_starts, nq, k), jnp.int32),
-    )
+    """Running top-K of every query block (``queries``: ``suffixes`` of each block, stacked)
+    over the database's rows a block at a time: (query blocks, starts, query block rows,
+    k). ``first_index`` is the global index of the database's first row (a device's part of
+    a sharded database starts past 0).
 
-    def step(carry, block_and_offset):
-        best_scores, best_idx = carry
-        block, offset = block_and_offset
+    The database is the outer loop: each of its blocks is read in place (only a last
+    partial block is padded, because padding the whole database would copy it), cut into
+    its suffix segments once, and scored against every query block in turn (``lax.map``:
+    one query block's scores in memory at a time). Cutting inside the query loop copied
+    the database's segments once per query block (docs/speed.md, "The removed-PC sweep").
+    One compiled program for all of it: a Python loop over query blocks would compile again
+    for a shorter last block."""
+    n_starts = len(starts)
+
+    def block_matches(block, offset):
+        """Every query block's K best of one database block: (query blocks, starts, qb, k)."""
         valid = offset + jnp.arange(block_size) < n_db
-        block_scores, block_idx = [None] * n_starts, [None] * n_starts
-        for i, dot, inv_q, inv_db in _suffix_dots(query_desc, block, starts):
-            # Top-K of the block for this start right away: the (nq, block) scores are
-            # never stacked over starts, which keeps memory traffic to one pass per start.
-            block_scores[i], pos = block_top_k(dot, inv_q, inv_db, valid, k)
-            block_idx[i] = offset + pos.astype(jnp.int32)
-        # Merge two K-lists. Earlier blocks come first and top_k is stable, so ties keep the
-        # lowest database index, as argmax would.
-        merged_scores = jnp.concatenate([best_scores, jnp.stack(block_scores)], axis=-1)
-        merged_idx = jnp.concatenate([best_idx, jnp.stack(block_idx)], axis=-1)
-        return _merge_top_k(merged_scores, merged_idx, k), None
+        db = suffixes(block, starts)
 
-    n_whole = db_desc.shape[0] // block_size
+        def query_block(query: Suffixes):
+            scores, idx = [None] * n_starts, [None] * n_starts
+            for i, dot, inv_q, inv_db in suffix_dots(query, db):
+                # Top-K of the block for this start right away: the (qb, block) scores are
+                # never stacked over starts, which keeps memory traffic to one pass per start.
+                scores[i], pos = block_top_k(dot, inv_q, inv_db, valid, k)
+                idx[i] = offset + pos.astype(jnp.int32)
+            return jnp.stack(scores), jnp.stack(idx)
 
-    def whole_block(carry, i):
+        return jax.lax.map(query_block, queries)
+
+    def merged(best, new):
+        # Earlier blocks come first and top_k is stable, so ties keep the lowest database
+        # index, as argmax would.
+        scores = jnp.concatenate([best[0], new[0]], axis=-1)
+        return _merge_top_k(scores, jnp.concatenate([best[1], new[1]], axis=-1), k)
+
+    def whole_block(best, i):
         block = jax.lax.dynamic_slice_in_dim(db_desc, i * block_size, block_size)
-        return step(carry, (block, first_index + i * block_size))
+        return merged(best, block_matches(block, first_index + i * block_size)), None
 
-    carry = init
-    if n_whole:
-        carry, _ = jax.lax.scan(whole_block, carry, jnp.arange(n_whole, dtype=jnp.int32))
+    # The first block's lists start the running ones (a database of one block is never merged).
+    n_whole = db_desc.shape[0] // block_size
+    lists = [block_matches(db_desc[:block_size], first_index)] if n_whole else []
+    if n_whole > 1:
+        lists[0], _ = jax.lax.scan(whole_block, lists[0], jnp.arange(1, n_whole, dtype=jnp.int32))
     if db_desc.shape[0] % block_size:  # static: the tail, padded to a whole block
         tail = _blocks(db_desc[n_whole * block_size :], block_size)[0]
-        carry, _ = step(carry, (tail, first_index + n_whole * block_size))
-    return carry
-
-
-@functools.partial(jax.jit, static_argnames=("k", "block_size", "starts"))
-def _top_k_query_blocks(query_blocks, db_desc, n_db, k, block_size, starts, first_index=0):
-    """``_top_k_blocks`` for each query block in turn (``lax.map``: one block's scores in
-    memory at a time), in one compiled program: a Python loop over query blocks would
-    compile again for a shorter last block."""
-    return jax.lax.map(
-        lambda q: _top_k_blocks(q, db_desc, n_db, k, block_size, starts, first_index),
-        query_blocks,
-    )
+        lists.append(block_matches(tail, first_index + n_whole * block_size))
+    return merged(*lists) if len(lists) == 2 else lists[0]
 
 
 @functools.partial(jax.jit, static_argnames=("k", "block_size", "query_block_size", "starts"))
 def _top_k_unpadded(query_desc, db_desc, k, block_size, query_block_size, starts):
-    """``_top_k_query_blocks`` on the descriptors as they are: the queries padded to whole
-    blocks inside the compiled program, the database read in place. Padding outside would
-    take three copies of the database: the padded array, its reshape, and jnp.asarray's own."""
+    """``_top_k_query_blocks`` on the descriptors as they are: the queries cut into their
+    suffix segments and each padded to whole blocks inside the compiled program (one copy,
+    the cut and the padding fused), the database read in place. Padding outside would take
+    three copies of the database: the padded array, its reshape, and jnp.asarray's own."""
     return _top_k_query_blocks(
-        _blocks(query_desc, query_block_size),
+        jax.tree.map(lambda x: _blocks(x, query_block_size), suffixes(query_desc, starts)),
         db_desc,
         db_desc.shape[0],
         k,
@@ -224,8 +247,8 @@ def _top_k_unpadded(query_desc, db_desc, k, block_size, query_block_size, starts
 
 
 def _blocks(x, size: int):
-    """Rows of ``x`` (numpy or JAX) zero-padded to whole blocks: (blocks, size, d)."""
-    return sharding.pad_rows(x, size).reshape(-1, size, x.shape[1])
+    """Rows of ``x`` (numpy or JAX) zero-padded to whole blocks: (blocks, size, ...)."""
+    return sharding.pad_rows(x, size).reshape(-1, size, *x.shape[1:])
 
 
 def _as_input(x, mesh: Mesh | None):
@@ -248,8 +271,9 @@ def _sharded_top_k(mesh, k: int, block_size: int, starts: tuple[int, ...]):
 
     def local(query_blocks, db_rows, n_db):
         first = jax.lax.axis_index(AXIS) * db_rows.shape[0]
+        queries = jax.vmap(lambda q: suffixes(q, starts))(query_blocks)
         scores, idx = _top_k_query_blocks(
-            query_blocks, db_rows, n_db, k, block_size, starts, first
+            queries, db_rows, n_db, k, block_size, starts, first
         )  # (query blocks, starts, block, k)
         scores = jax.lax.all_gather(scores, AXIS, axis=3, tiled=True)
         idx = jax.lax.all_gather(idx, AXIS, axis=3, tiled=True)
@@ -275,8 +299,8 @@ def top_k_matches(
     """The K best database matches of every query, best first, for every suffix start.
 
     Returns numpy (scores, indices), each (len(starts), n_queries, min(k, n_db)); indices
-    point into ``db_desc``. Each step scores len(starts) x query_block_size x block_size
-    floats, independent of n_db; by default query blocks shrink as starts grow so that a step
+    point into ``db_desc``. A step holds ``live_blocks(starts)`` x query_block_size x
+    block_size scores, independent of n_db; by default query blocks are sized so that a step
     stays near ``score_budget()`` floats (a quarter of the last-level cache), with at least
     ``MIN_QUERY_ROWS_PER_CORE`` rows per core. Blocks only split the work: the database is
     read in whole blocks in place and its last partial block padded to a whole one, never
@@ -301,7 +325,7 @@ def top_k_matches(
     block_size = max(min(block_size, -(-n_db // n_devices)), k)
     if query_block_size is None:
         floor = MIN_QUERY_ROWS_PER_CORE * (os.cpu_count() or 1)
-        query_block_size = max(floor, score_budget() // (len(starts) * block_size))
+        query_block_size = max(floor, score_budget() // (live_blocks(starts) * block_size))
     nq = query_desc.shape[0]
     query_block_size = min(query_block_size, nq)
     if mesh is None:
