@@ -219,11 +219,16 @@ def _top_k_query_blocks(
         block = jax.lax.dynamic_slice_in_dim(db_desc, i * block_size, block_size)
         return merged(best, block_matches(block, first_index + i * block_size)), None
 
-    # The first block's lists start the running ones (a database of one block is never merged).
-    n_whole = db_desc.shape[0] // block_size
-    lists = [block_matches(db_desc[:block_size], first_index)] if n_whole else []
-    if n_whole > 1:
-        lists[0], _ = jax.lax.scan(whole_block, lists[0], jnp.arange(1, n_whole, dtype=jnp.int32))
+    n_whole, lists = db_desc.shape[0] // block_size, []
+    if n_whole == 1:  # its lists are the running ones: never merged with empty lists
+        lists.append(block_matches(db_desc[:block_size], first_index))
+    elif n_whole:  # empty lists, then every whole block in one loop (its body traced once)
+        nb, qb = queries.inv_norms[0].shape
+        empty = (
+            jnp.full((nb, n_starts, qb, k), -jnp.inf, db_desc.dtype),
+            jnp.zeros((nb, n_starts, qb, k), jnp.int32),
+        )
+        lists.append(jax.lax.scan(whole_block, empty, jnp.arange(n_whole, dtype=jnp.int32))[0])
     if db_desc.shape[0] % block_size:  # static: the tail, padded to a whole block
         tail = _blocks(db_desc[n_whole * block_size :], block_size)[0]
         lists.append(block_matches(tail, first_index + n_whole * block_size))
