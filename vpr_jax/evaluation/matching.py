@@ -169,6 +169,24 @@ def block_top_k(
     return best, jnp.take_along_axis(cols, pos, axis=1)
 
 
+def _block_matches(queries: Suffixes, block, offset, n_db, k: int, starts: tuple[int, ...]):
+    """Every query block's K best of one database block (rows from ``offset`` on; those
+    past ``n_db`` are padding): (query blocks, starts, query block rows, k)."""
+    valid = offset + jnp.arange(block.shape[0]) < n_db
+    db = suffixes(block, starts)
+
+    def query_block(query: Suffixes):
+        scores, idx = [None] * len(starts), [None] * len(starts)
+        for i, dot, inv_q, inv_db in suffix_dots(query, db):
+            # Top-K of the block for this start right away: the (qb, block) scores are never
+            # stacked over starts, which keeps memory traffic to one pass per start.
+            scores[i], pos = block_top_k(dot, inv_q, inv_db, valid, k)
+            idx[i] = offset + pos.astype(jnp.int32)
+        return jnp.stack(scores), jnp.stack(idx)
+
+    return jax.lax.map(query_block, queries)
+
+
 @functools.partial(jax.jit, static_argnames=("k", "block_size", "starts"))
 def _top_k_query_blocks(
     queries: Suffixes,
@@ -194,20 +212,7 @@ def _top_k_query_blocks(
     n_starts = len(starts)
 
     def block_matches(block, offset):
-        """Every query block's K best of one database block: (query blocks, starts, qb, k)."""
-        valid = offset + jnp.arange(block_size) < n_db
-        db = suffixes(block, starts)
-
-        def query_block(query: Suffixes):
-            scores, idx = [None] * n_starts, [None] * n_starts
-            for i, dot, inv_q, inv_db in suffix_dots(query, db):
-                # Top-K of the block for this start right away: the (qb, block) scores are
-                # never stacked over starts, which keeps memory traffic to one pass per start.
-                scores[i], pos = block_top_k(dot, inv_q, inv_db, valid, k)
-                idx[i] = offset + pos.astype(jnp.int32)
-            return jnp.stack(scores), jnp.stack(idx)
-
-        return jax.lax.map(query_block, queries)
+        return _block_matches(queries, block, offset, n_db, k, starts)
 
     def merged(best, new):
         # Earlier blocks come first and top_k is stable, so ties keep the lowest database
