@@ -2,8 +2,10 @@ import contextlib
 import fcntl
 import gc
 import importlib
+import importlib.util
 import io
 import json
+import mmap
 import os
 import shlex
 import shutil
@@ -217,13 +219,14 @@ def pytest_configure(config):
       on 2 cores with them, 4 min 15 s without);
     - XLA's CPU code generated without LLVM's optimisation passes
       (``--xla_backend_optimization_level=0``) and by XLA's older fusion code generator,
-      which compiles in half the time of the MLIR one (``--xla_cpu_use_fusion_emitters=false``):
-      the suite's programs are tiny and most of their time was compiling them; the same
-      computations, rounded as that code rounds them (no check here depends on the last
-      bits: oracles have tolerances, and runs compared with each other run under the same
-      flags). The suite took 6 min 22 s with XLA's defaults, 5 min 19-22 s without LLVM's
-      passes, 4 min 12 s with the older generator as well (2 cores, 2026-12-05). JAX looks
-      for no accelerator (``JAX_PLATFORMS=cpu`` unless set);
+      which compiles in half the time of the MLIR one (``--xla_cpu_use_fusion_emitters=false``
+      where the installed jaxlib has the flag): the suite's programs are tiny and most of
+      their time was compiling them; the same computations, rounded as that code rounds
+      them (no check here depends on the last bits: oracles have tolerances, and runs
+      compared with each other run under the same flags). The suite took 6 min 22 s with
+      XLA's defaults, 5 min 19-22 s without LLVM's passes, 4 min 12 s with the older
+      generator as well (2 cores, 2026-12-05). JAX looks for no accelerator
+      (``JAX_PLATFORMS=cpu`` unless set);
     - one cache of XLA's compiled programs for the session: the suite's many small sweeps
       compile the same programs, and reading them back halves each sweep's time. The
       folder is deleted when the session ends. JAX writes an entry without a lock; an entry
@@ -246,7 +249,7 @@ def pytest_configure(config):
             "XLA_FLAGS",
             "--xla_cpu_multi_thread_eigen=false",
             "--xla_backend_optimization_level=0",
-            "--xla_cpu_use_fusion_emitters=false",
+            *[f"--{flag}=false" for flag in ["xla_cpu_use_fusion_emitters"] if _xla_knows(flag)],
             sep=" ",
         ),
         JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS") or "cpu",
@@ -257,6 +260,19 @@ def pytest_configure(config):
         JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0",
         PYTHONWARNINGS=extended("PYTHONWARNINGS", *cache_warnings, sep=","),
     )
+
+
+def _xla_knows(flag: str) -> bool:
+    """Whether the installed jaxlib's XLA has ``flag``: its name in jaxlib's compiled
+    libraries. XLA ends every process that is given a flag it does not know, and
+    ``xla_cpu_use_fusion_emitters`` is younger than the oldest jax the project accepts
+    (and may go when the older generator does)."""
+    spec = importlib.util.find_spec("jaxlib")
+    for lib in Path(spec.origin).parent.glob("*.so"):
+        with open(lib, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as m:
+            if m.find(flag.encode()) != -1:
+                return True
+    return False
 
 
 def pytest_sessionfinish(session):
