@@ -249,7 +249,9 @@ def pytest_configure(config):
             "XLA_FLAGS",
             "--xla_cpu_multi_thread_eigen=false",
             "--xla_backend_optimization_level=0",
-            *[f"--{flag}=false" for flag in ["xla_cpu_use_fusion_emitters"] if _xla_knows(flag)],
+            "--xla_cpu_use_fusion_emitters=false"
+            if _xla_knows("xla_cpu_use_fusion_emitters")
+            else "",
             sep=" ",
         ),
         JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS") or "cpu",

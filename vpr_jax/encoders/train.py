@@ -155,7 +155,10 @@ def _optimizer(
     tx = OPTIMIZERS[name](learning_rate)
     if not frozen:
         return tx
-    labels = lambda params: {k: "frozen" if k in frozen else "trained" for k in params}  # noqa: E731
+
+    def labels(params):
+        return {k: "frozen" if k in frozen else "trained" for k in params}
+
     return optax.multi_transform({"trained": tx, "frozen": optax.set_to_zero()}, labels)
 
 
