@@ -211,9 +211,6 @@ def _top_k_query_blocks(
     for a shorter last block."""
     n_starts = len(starts)
 
-    def block_matches(block, offset):
-        return _block_matches(queries, block, offset, n_db, k, starts)
-
     def merged(best, new):
         # Earlier blocks come first and top_k is stable, so ties keep the lowest database
         # index, as argmax would.
@@ -222,11 +219,12 @@ def _top_k_query_blocks(
 
     def whole_block(best, i):
         block = jax.lax.dynamic_slice_in_dim(db_desc, i * block_size, block_size)
-        return merged(best, block_matches(block, first_index + i * block_size)), None
+        new = _block_matches(queries, block, first_index + i * block_size, n_db, k, starts)
+        return merged(best, new), None
 
     n_whole, lists = db_desc.shape[0] // block_size, []
     if n_whole == 1:  # its lists are the running ones: never merged with empty lists
-        lists.append(block_matches(db_desc[:block_size], first_index))
+        lists.append(_block_matches(queries, db_desc[:block_size], first_index, n_db, k, starts))
     elif n_whole:  # empty lists, then every whole block in one loop (its body traced once)
         nb, qb = queries.inv_norms[0].shape
         empty = (
@@ -236,24 +234,31 @@ def _top_k_query_blocks(
         lists.append(jax.lax.scan(whole_block, empty, jnp.arange(n_whole, dtype=jnp.int32))[0])
     if db_desc.shape[0] % block_size:  # static: the tail, padded to a whole block
         tail = _blocks(db_desc[n_whole * block_size :], block_size)[0]
-        lists.append(block_matches(tail, first_index + n_whole * block_size))
+        offset = first_index + n_whole * block_size
+        lists.append(_block_matches(queries, tail, offset, n_db, k, starts))
     return merged(*lists) if len(lists) == 2 else lists[0]
 
 
 @functools.partial(jax.jit, static_argnames=("k", "block_size", "query_block_size", "starts"))
 def _top_k_unpadded(query_desc, db_desc, k, block_size, query_block_size, starts):
-    """``_top_k_query_blocks`` on the descriptors as they are: the queries cut into their
-    suffix segments and each padded to whole blocks inside the compiled program (one copy,
-    the cut and the padding fused), the database read in place. Padding outside would take
-    three copies of the database: the padded array, its reshape, and jnp.asarray's own."""
+    """``_top_k_query_blocks`` on the descriptors as they are: the queries cut into blocks
+    inside the compiled program (``_query_blocks``), the database read in place. Padding
+    outside would take three copies of the database: the padded array, its reshape, and
+    jnp.asarray's own."""
     return _top_k_query_blocks(
-        jax.tree.map(lambda x: _blocks(x, query_block_size), suffixes(query_desc, starts)),
+        _query_blocks(query_desc, query_block_size, starts),
         db_desc,
         db_desc.shape[0],
         k,
         block_size,
         starts,
     )
+
+
+def _query_blocks(query_desc, size: int, starts: tuple[int, ...]) -> Suffixes:
+    """The queries cut into their suffix segments, each padded to whole blocks of ``size``
+    rows and stacked (one copy: the cut and the padding fuse)."""
+    return jax.tree.map(lambda x: _blocks(x, size), suffixes(query_desc, starts))
 
 
 def _blocks(x, size: int):
@@ -274,14 +279,14 @@ def _merge_top_k(scores, indices, k: int):
 
 
 @functools.lru_cache(maxsize=16)
-def _sharded_top_k(mesh, k: int, block_size: int, starts: tuple[int, ...]):
+def _sharded_top_k(mesh, k: int, block_size: int, query_block_size: int, starts: tuple[int, ...]):
     """``_top_k_query_blocks`` with the database blocks split across ``mesh``: every device
     keeps the K best of its own part, then the K-lists are gathered (in device order, so in
     database order) and merged. Queries are replicated."""
 
-    def local(query_blocks, db_rows, n_db):
+    def local(query_desc, db_rows, n_db):
         first = jax.lax.axis_index(AXIS) * db_rows.shape[0]
-        queries = jax.vmap(lambda q: suffixes(q, starts))(query_blocks)
+        queries = _query_blocks(query_desc, query_block_size, starts)
         scores, idx = _top_k_query_blocks(
             queries, db_rows, n_db, k, block_size, starts, first
         )  # (query blocks, starts, block, k)
@@ -310,9 +315,10 @@ def top_k_matches(
 
     Returns numpy (scores, indices), each (len(starts), n_queries, min(k, n_db)); indices
     point into ``db_desc``. A step holds ``live_blocks(starts)`` x query_block_size x
-    block_size scores, independent of n_db; by default query blocks are sized so that a step
-    stays near ``score_budget()`` floats (a quarter of the last-level cache), with at least
-    ``MIN_QUERY_ROWS_PER_CORE`` rows per core. Blocks only split the work: the database is
+    block_size scores, independent of n_db; by default the queries are split evenly into
+    as few blocks as keep each within the larger of ``score_budget()`` floats a step (a
+    quarter of the last-level cache) and ``MIN_QUERY_ROWS_PER_CORE`` rows per core. Blocks
+    only split the work: the database is
     read in whole blocks in place and its last partial block padded to a whole one, never
     to the ranking's lanes, because a product's rounding changes with its padded width and
     the scores would move by an ulp.
@@ -333,10 +339,13 @@ def top_k_matches(
     # No device scores only padding, but a block holds at least k rows: a small database
     # split over many devices pads each device's block (padding scores -inf, never kept).
     block_size = max(min(block_size, -(-n_db // n_devices)), k)
+    nq = query_desc.shape[0]
     if query_block_size is None:
         floor = MIN_QUERY_ROWS_PER_CORE * (os.cpu_count() or 1)
-        query_block_size = max(floor, score_budget() // (live_blocks(starts) * block_size))
-    nq = query_desc.shape[0]
+        largest = max(floor, score_budget() // (live_blocks(starts) * block_size))
+        # As many blocks as the largest size needs, of equal size: 894 queries in blocks of
+        # up to 782 rows are two of 447, not 782 and 112 padded to 782.
+        query_block_size = -(-nq // -(-nq // largest))
     query_block_size = min(query_block_size, nq)
     if mesh is None:
         scores, indices = _top_k_unpadded(
@@ -345,8 +354,8 @@ def top_k_matches(
     else:
         # Every device gets whole blocks: the database is padded to a multiple of all of them.
         db_rows = sharding.pad_rows(db_desc, n_devices * block_size)  # whole blocks each
-        scores, indices = _sharded_top_k(mesh, k, block_size, starts)(
-            sharding.put(_blocks(query_desc, query_block_size), mesh, P()),
+        scores, indices = _sharded_top_k(mesh, k, block_size, query_block_size, starts)(
+            sharding.put(query_desc, mesh, P()),
             sharding.put_rows(db_rows, mesh),
             jnp.int32(n_db),
         )
