@@ -71,6 +71,17 @@ def live_blocks(starts: tuple[int, ...]) -> int:
     return 1 if len(starts) == 1 else 3
 
 
+def even_query_blocks(nq: int, starts: tuple[int, ...], block_size: int) -> int:
+    """The automatic query block: ``nq`` queries split evenly into as few blocks as keep
+    each within the larger of ``score_budget()`` floats a step and
+    ``MIN_QUERY_ROWS_PER_CORE`` rows per core. Even, because the last block is padded to
+    the others: 894 queries in blocks of up to 782 rows are two of 447, not 782 and 112
+    padded to 782."""
+    floor = MIN_QUERY_ROWS_PER_CORE * (os.cpu_count() or 1)
+    largest = max(floor, score_budget() // (live_blocks(starts) * block_size))
+    return -(-nq // -(-nq // largest))
+
+
 def lane_width(block: int, k: int) -> int:
     """W for ``block_top_k``: the power of two nearest below sqrt(block x k), which balances
     the ranking of the W lane maxima against that of the K x block / W candidates; 0 when
@@ -315,13 +326,10 @@ def top_k_matches(
 
     Returns numpy (scores, indices), each (len(starts), n_queries, min(k, n_db)); indices
     point into ``db_desc``. A step holds ``live_blocks(starts)`` x query_block_size x
-    block_size scores, independent of n_db; by default the queries are split evenly into
-    as few blocks as keep each within the larger of ``score_budget()`` floats a step (a
-    quarter of the last-level cache) and ``MIN_QUERY_ROWS_PER_CORE`` rows per core. Blocks
-    only split the work: the database is
-    read in whole blocks in place and its last partial block padded to a whole one, never
-    to the ranking's lanes, because a product's rounding changes with its padded width and
-    the scores would move by an ulp.
+    block_size scores, independent of n_db; query blocks are ``even_query_blocks`` unless
+    given. Blocks only split the work: the database is read in whole blocks in place and
+    its last partial block padded to a whole one, never to the ranking's lanes, because a
+    product's rounding changes with its padded width and the scores would move by an ulp.
 
     With a ``mesh`` the database is split across its devices (``vpr_jax.sharding``): each
     scores its part in the same blocks, and the per-device K-lists are merged.
@@ -341,11 +349,7 @@ def top_k_matches(
     block_size = max(min(block_size, -(-n_db // n_devices)), k)
     nq = query_desc.shape[0]
     if query_block_size is None:
-        floor = MIN_QUERY_ROWS_PER_CORE * (os.cpu_count() or 1)
-        largest = max(floor, score_budget() // (live_blocks(starts) * block_size))
-        # As many blocks as the largest size needs, of equal size: 894 queries in blocks of
-        # up to 782 rows are two of 447, not 782 and 112 padded to 782.
-        query_block_size = -(-nq // -(-nq // largest))
+        query_block_size = even_query_blocks(nq, starts, block_size)
     query_block_size = min(query_block_size, nq)
     if mesh is None:
         scores, indices = _top_k_unpadded(
