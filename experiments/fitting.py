@@ -99,9 +99,8 @@ def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
 
 def fitted_on(fit: Fit, run: PairRun) -> PairData:
     """The pair as the fit sees it: its training places thinned to ``split.train_places``
-    (the validation and test places as they are), made once per value."""
-    if fit.train_places is None:
-        return run.data
+    (the validation and test places as they are), made once per value (None: the pair
+    itself)."""
     key = ("train_places", fit.train_places)
     if key not in run.shared:
         run.shared[key] = with_train_places(run.data, fit.train_places)

@@ -79,7 +79,8 @@ def even_query_blocks(nq: int, starts: tuple[int, ...], block_size: int) -> int:
     padded to 782."""
     floor = MIN_QUERY_ROWS_PER_CORE * (os.cpu_count() or 1)
     largest = max(floor, score_budget() // (live_blocks(starts) * block_size))
-    return -(-nq // -(-nq // largest))
+    n_blocks = -(-nq // largest)  # ceiling division
+    return -(-nq // n_blocks)
 
 
 def lane_width(block: int, k: int) -> int:
