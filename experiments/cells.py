@@ -46,6 +46,20 @@ def _part(desc: Descriptors, pair: PairData, part: str):
     return desc.val_query, desc.val_db, pair.val_query_ids, pair.val_db_ids
 
 
+def _top_k(query, db, k: int, starts: tuple[int, ...], cfg: SweepConfig, mesh: Mesh | None):
+    """``top_k_matches`` in the config's blocks and precision (``matching.*``)."""
+    matching = cfg.matching
+    return top_k_matches(
+        query,
+        db,
+        k,
+        starts=starts,
+        block_size=matching.block_size,
+        mesh=mesh,
+        precision=matching.precision,
+    )
+
+
 def match(
     desc: Descriptors,
     pair: PairData,
@@ -66,9 +80,7 @@ def match(
     """
     query, db, query_ids, db_ids = _part(desc, pair, part)
     if ds == 1:
-        scores, idx = top_k_matches(
-            query, db, k, starts=starts, block_size=cfg.matching.block_size, mesh=mesh
-        )
+        scores, idx = _top_k(query, db, k, starts, cfg, mesh)
         return list(zip(scores, idx, strict=True))
     seq = cfg.sequence
     return [
@@ -82,6 +94,7 @@ def match(
             contrast_window=seq.contrast_window,
             uniqueness_window=seq.uniqueness_window,
             k=k,
+            precision=cfg.matching.precision,
         )
         for start in starts
     ]
@@ -179,9 +192,7 @@ def validation_scores(pair: PairData, cfg: SweepConfig, mesh: Mesh | None) -> Ca
     validation places are (``match``, ``_validation_scores``)."""
 
     def scores(val_db, val_query, starts: tuple[int, ...]) -> list[tuple[float, float]]:
-        top_scores, idx = top_k_matches(
-            val_query, val_db, TOP_K, starts=starts, block_size=cfg.matching.block_size, mesh=mesh
-        )
+        top_scores, idx = _top_k(val_query, val_db, TOP_K, starts, cfg, mesh)
         scored = [_validation_scores(cfg, pair, top) for top in zip(top_scores, idx, strict=True)]
         return [(v.recall_at_1, v.margin) for v in scored]
 

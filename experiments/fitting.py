@@ -52,6 +52,7 @@ from vpr_jax.methods.descriptors import (
 from vpr_jax.methods.precomputed import Outside
 from vpr_jax.methods.settings import as_dict
 from vpr_jax.outputs.tb import TrainingRun
+from vpr_jax.precision import with_float32_products
 from vpr_jax.progress import Log
 
 
@@ -168,10 +169,11 @@ def _fails(info: MethodInfo, step: str, err: Exception) -> UserError:
 
 
 def checked_encode(info: MethodInfo, encode: Callable, jit: bool = True) -> Callable:
-    """A method's ``encode`` (jitted for a user's: the contract asks for a jittable one),
+    """A method's ``encode`` (jitted for a user's: the contract asks for a jittable one,
+    traced with float32 products where it states none, as ``load_encoder`` hands it out),
     its output checked: one row per image, two dimensions, at least one feature, finite.
     The same for every method, built-in or a user's."""
-    call = jax.jit(encode) if jit else encode
+    call = jax.jit(with_float32_products(encode)) if jit else encode
 
     def run(state, images):
         try:
@@ -211,8 +213,11 @@ def run_fit(fit: Fit, run: PairRun) -> tuple[Any, float, float]:
     given = resources(fit, run)
     aligned = data.aligned_train if data.aligned_training else None
     key = jax.random.key(fit.seed)
+    # A user's fit computes its products at float32 unless it states otherwise, as every
+    # built-in's are stated (vpr_jax.precision): the same numbers on any device.
+    fit_fn = with_float32_products(method.fit) if info.plugin else method.fit
     try:
-        state, seconds = timed(lambda: method.fit(data.train, aligned, key, **fit.values, **given))
+        state, seconds = timed(lambda: fit_fn(data.train, aligned, key, **fit.values, **given))
     except (UserError, NotScored):
         raise
     except Exception as err:  # the method's code, a built-in's or a user's

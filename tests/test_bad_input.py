@@ -161,6 +161,10 @@ CONFIG_CASES = {
         ["data.frame_range=[9, 2] is not [first, last]"],
     ),
     "wrong type": (["tolerance=two"], ["tolerance"]),
+    "unknown matching precision": (
+        ["matching.precision=tf32"],
+        ["matching.precision=tf32", "float32", "default"],
+    ),
     "bad pair name": (["season_pairs=summer_fall"], ["summer_fall", "season_pairs"]),
     "pair of one season": (["season_pairs=fall-fall"], ["fall-fall"]),
     "pair outside seasons": (["season_pairs=summer-winter"], ["winter", "data.seasons"]),

@@ -11,6 +11,8 @@ import re
 import runpy
 import sys
 
+import pytest
+
 from tests.conftest import REPO, env_with_repo, run_process
 from tests.inputs import write_folders
 
@@ -54,16 +56,36 @@ def line_matching(out: str, pattern: str) -> str:
     raise AssertionError(f"no line matches {pattern!r} in:\n{out[-3000:]}")
 
 
-def test_run_all(capfd):
+@pytest.fixture(scope="module")
+def device_check_out() -> str:
+    """What ``device_check.py --tiny`` prints: on the CPU, where the "device" is the CPU.
+    It runs ``run_all.py --tiny --skip-scaling`` as its last step, which test_run_all
+    reads."""
+    return run_script("device_check.py", "--tiny")
+
+
+def test_device_check(device_check_out):
+    """Its oracle tests pass, its two tiny sweeps agree to the digit, and run_all's table
+    names the device."""
+    out = device_check_out
+    line_matching(out, r"^device: .+ \(cpu\), jax \d")
+    line_matching(out, r"^\d+ passed in ")
+    line_matching(out, r"^  2 cells compared: 0 differences .*recall@1 0\.0000, AUC-PR 0\.0000$")
+    line_matching(out, r"^jax \S+ on cpu ")
+    line_matching(out, r"^device check passed on ")
+
+
+def test_run_all(device_check_out):
     """Every row but the scaling exponents: those are scaling.py's ``measure`` at the same
     tiny lengths (test_scaling), three more fresh processes this test leaves out."""
-    out = run_here(capfd, "run_all.py", "--tiny", "--skip-scaling")
+    out = device_check_out[device_check_out.index("3. run_all") :]
     header = line_matching(out, r"^what\s+ours\s+peer, same run\s+ratio\s+goal\s+met$")
     table = out[out.index(header) :]
     for row in (
         "PCA fit, every component, 300 x 256",
         "FastICA, 8 components",
         "matching, top-10 of 100 x 100",
+        "  the same at matching.precision=default",
         "sequence matching ds=10, 100 x 100",
         "encode ICA (8)",
         "encode CAE calc (64,128) c8",
@@ -169,6 +191,40 @@ def test_real_data(tmp_path, capfd):
         rf"\| {number} \(k=[05]\) \| [05]: {number} \|",
     )
     assert (tmp_path / "runs" / "results.csv").is_file()
+
+
+def test_device_check_compares_cell_by_cell(monkeypatch):
+    """The comparison sees a recall@1 beyond 0.005, another chosen setting and a missing
+    cell, and names the kept epochs where they differ."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    from device_check import compare
+
+    from vpr_jax.outputs.results import ResultRow
+
+    def row(run, recall, selected=1, kept=None):
+        fields = dict.fromkeys(ResultRow._fields, 0)
+        return ResultRow(
+            **{
+                **fields,
+                "run": run,
+                "recall_at_1": recall,
+                "selected": selected,
+                "val_recall_at_1": 0.5,
+                "kept_epoch": kept,
+            }
+        )
+
+    device = [row("a/pca_k000", 0.500), row("a/fae", 0.600, kept=3), row("a/pca_k005", 0.7, 0)]
+    cpu = [row("a/pca_k000", 0.504), row("a/fae", 0.590, kept=0), row("a/pca_k005", 0.7, 1)]
+    assert compare(device, cpu, 0.005) == [
+        "a/fae: recall@1 0.6000 on the device, 0.5900 on the CPU (+0.0100); kept epoch 3 on "
+        "the device, 0 on the CPU",
+        "a/pca_k005: chosen on validation on the CPU only (validation recall@1 0.5000 / 0.5000)",
+    ]
+    assert compare(device[:1], cpu, 0.005) == [
+        "cell a/fae only on the CPU",
+        "cell a/pca_k005 only on the CPU",
+    ]
 
 
 def test_every_script_is_tested():

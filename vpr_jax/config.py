@@ -33,6 +33,9 @@ OPTIMIZERS = ("adam", "adamw", "sgd")  # optax's functions of these names
 PREPROCESSES = ("none", "patchnorm")
 # How PR recall counts (docs/metrics.md, "PR conventions"; vpr_jax.evaluation.metrics).
 PR_CONVENTIONS = ("vpr_bench", "has_match", "vpr_tutorial")
+# matching.precision: the matcher's products at float32, or the platform's fastest (TF32 on
+# recent NVIDIA GPUs; vpr_jax.precision).
+MATCHING_PRECISIONS = ("float32", "default")
 # train.* keys that say where and how often models are saved, not what is trained.
 TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
 
@@ -255,9 +258,18 @@ class TrainConfig:
 @dataclass(frozen=True)
 class MatchingConfig:
     block_size: int = 4096  # database images scored at once; bounds memory on long routes
+    # float32: every score as a CPU computes it; default: the platform's fastest products
+    # (TF32 on recent NVIDIA GPUs: faster, close scores can swap). Encoders are float32 always.
+    precision: str = "float32"
 
     def __post_init__(self):
         _check(self.block_size >= 1, f"matching.block_size={self.block_size} must be >= 1")
+        _check(
+            self.precision in MATCHING_PRECISIONS,
+            f"matching.precision={self.precision} is not "
+            f"{' or '.join(MATCHING_PRECISIONS)}: use float32 (every score as a CPU computes "
+            "it) or default (the platform's fastest products)",
+        )
 
 
 @dataclass(frozen=True)

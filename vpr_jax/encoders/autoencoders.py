@@ -21,6 +21,11 @@ Training speed on CPU: the CAE's wide convolutions take their kernel gradient fr
 ``encoders/conv.py`` (per-tap matrix products instead of XLA's slow gradient convolution)
 and pooling is a reshape and a max (``max_pool_2x2``), whose gradient is cheaper than
 ``reduce_window``'s (docs/speed.md, "Auto-encoders").
+
+Precision: the layers state none. Codes (``make_encode``) and the inputs a linear start is
+fitted on are made at float32 on every device (``vpr_jax.precision.float32_products``);
+training steps and ``make_reconstruct`` keep the platform's default (TF32 on recent NVIDIA
+GPUs), whose rounding is noise next to SGD's.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from jaxtyping import Array, Float
 
 from vpr_jax.encoders import lda, pca
 from vpr_jax.encoders.conv import conv_general_dilated
+from vpr_jax.precision import f32_matmul, float32_products
 from vpr_jax.shapes import IMAGE_SHAPE
 
 
@@ -367,14 +373,16 @@ def make_encode(graphdef) -> Callable:
 
     @jax.jit
     def encode(params, images: Float[Array, "n h w ..."]) -> Float[Array, "n code"]:
-        return nnx.merge(graphdef, params).encode(jnp.asarray(images, jnp.float32))
+        with float32_products():  # the descriptor: float32 on every device
+            return nnx.merge(graphdef, params).encode(jnp.asarray(images, jnp.float32))
 
     return encode
 
 
 @functools.cache  # one jitted function (and compilation) per architecture
 def make_reconstruct(graphdef) -> Callable:
-    """The jitted ``reconstruct(params, images) -> images`` (decoder of the code)."""
+    """The jitted ``reconstruct(params, images) -> images`` (decoder of the code), at the
+    platform's precision: training's pictures of its progress."""
 
     @jax.jit
     def reconstruct(params, images: Float[Array, "n h w ..."]) -> Float[Array, "n h w ..."]:
@@ -458,14 +466,16 @@ def linear_start(
     columns = directions[:n_units].T.astype(kernel.dtype)  # (pixels, n_units)
     paired = jnp.stack([columns, -columns], axis=2).reshape(kernel.shape[0], -1)
     kernel = kernel.at[:, : 2 * n_units].set(paired)
-    bias = params["encoder"]["bias"].at[: 2 * n_units].set(-(mean.astype(kernel.dtype) @ paired))
+    centring = -f32_matmul(mean.astype(kernel.dtype), paired)
+    bias = params["encoder"]["bias"].at[: 2 * n_units].set(centring)
     decoder = {"kernel": kernel.T, "bias": jnp.zeros_like(params["decoder"]["bias"])}
     return {**params, "encoder": {"kernel": kernel, "bias": bias}, "decoder": decoder}
 
 
 @functools.partial(jax.jit, static_argnums=0)
 def _model_inputs(graphdef, params, images):
-    return nnx.merge(graphdef, params).inputs(images)
+    with float32_products():  # what a linear start is fitted on
+        return nnx.merge(graphdef, params).inputs(images)
 
 
 def reconstruction_loss(graphdef, params, images: Float[Array, "n h w ..."]) -> Float[Array, ""]:

@@ -38,6 +38,7 @@ from jaxtyping import Array, Bool, Float, Int
 from threadpoolctl import threadpool_limits
 
 from vpr_jax.encoders import pca
+from vpr_jax.precision import f32_matmul
 
 Fun = Literal["logcosh", "exp", "cube"]
 FUNS: tuple[str, ...] = typing.get_args(Fun)  # the contrasts ica.fun names
@@ -92,16 +93,16 @@ def one_unit_update(
     ``z_t`` is z transposed, when the caller keeps a copy: under ``vmap`` over rows the
     second product then reads contiguous rows, which is faster than a strided read.
     """
-    gy, dgy = nonlinearity(fun, z @ w, alpha)
+    gy, dgy = nonlinearity(fun, f32_matmul(z, w), alpha)
     z_t = z.T if z_t is None else z_t
-    return z_t @ gy / z.shape[0] - jnp.mean(dgy) * w
+    return f32_matmul(z_t, gy) / z.shape[0] - jnp.mean(dgy) * w
 
 
 def symmetric_decorrelation(w: Float[Array, "c c"]) -> Float[Array, "c c"]:
     """W <- (W W^T)^(-1/2) W: the nearest matrix with orthonormal rows."""
-    s, u = jnp.linalg.eigh(w @ w.T)
+    s, u = jnp.linalg.eigh(f32_matmul(w, w.T))
     s = jnp.maximum(s, jnp.finfo(w.dtype).tiny)  # rounding can make tiny eigenvalues negative
-    return (u * lax.rsqrt(s)) @ (u.T @ w)
+    return f32_matmul(u * lax.rsqrt(s), f32_matmul(u.T, w))
 
 
 @functools.partial(jax.jit, static_argnames=("fun",))
@@ -147,7 +148,8 @@ def negentropy(
     w: Float[Array, "c c"], z: Float[Array, "n c"], fun: str, alpha: float
 ) -> Float[Array, ""]:
     """FastICA's objective: sum over components of (E[G(w.z)] - E[G(gaussian)])^2."""
-    gap = jnp.mean(contrast(fun, z @ w.T, alpha), axis=0) - _gaussian_contrast(fun, alpha)
+    projections = f32_matmul(z, w.T)
+    gap = jnp.mean(contrast(fun, projections, alpha), axis=0) - _gaussian_contrast(fun, alpha)
     return jnp.sum(gap * gap)
 
 
@@ -201,7 +203,7 @@ def mixing(state: ICAState) -> Float[Array, "d c"]:
     The whitening rows are orthogonal (scaled PCA components), so pinv(K) = K^T / |rows|^2.
     """
     k = state.whitening
-    return (k.T / jnp.sum(k * k, axis=1)) @ state.unmixing.T
+    return f32_matmul(k.T / jnp.sum(k * k, axis=1), state.unmixing.T)
 
 
 @jax.jit
@@ -266,7 +268,7 @@ def fit_ica(
         pca_state = pca.fit_pca(x, wanted, solver=pca_solver)
     c = resolve_n_components(n_components, removed_pcs, data_rank(pca_state, n))
     k_white = whitening_matrix(pca_state, n, removed_pcs, c)
-    z = (x - pca_state.mean) @ k_white.T
+    z = f32_matmul(x - pca_state.mean, k_white.T)
 
     if w_init is not None:
         inits = jnp.asarray(w_init, jnp.float32)[None]
@@ -318,7 +320,8 @@ def _best_of_inits(z, inits, fun: Fun, alpha: float, max_iter: int, tol: float):
 @jax.jit
 def encode(state: ICAState, images: Float[Array, "n ..."]) -> Float[Array, "n c"]:
     """Independent-component coefficients (sources) of images; unit variance on training."""
-    return ((pca.flatten(images) - state.mean) @ state.whitening.T) @ state.unmixing.T
+    whitened = f32_matmul(pca.flatten(images) - state.mean, state.whitening.T)
+    return f32_matmul(whitened, state.unmixing.T)
 
 
 def amari_distance(unmixing: np.ndarray, true_mixing: np.ndarray) -> float:

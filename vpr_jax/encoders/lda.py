@@ -30,6 +30,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from vpr_jax.encoders import pca
+from vpr_jax.precision import f32_matmul
 
 
 class LDAState(NamedTuple):
@@ -41,7 +42,7 @@ class LDAState(NamedTuple):
 def within_place_scatter(za: Float[Array, "n m"], zb: Float[Array, "n m"]) -> Float[Array, "m m"]:
     """Each place's scatter about its own mean, averaged over places (two images a place)."""
     diff = za - zb
-    return diff.T @ diff / (4 * za.shape[0])
+    return f32_matmul(diff.T, diff) / (4 * za.shape[0])
 
 
 @functools.partial(jax.jit, static_argnames=("n_components",))
@@ -56,8 +57,8 @@ def fit_lda(
     the leading ``n_components`` components of ``pca_state``, a PCA fit of both seasons'
     training images."""
     basis = pca_state.components[:n_components]
-    za = (pca.flatten(train_a) - pca_state.mean) @ basis.T
-    zb = (pca.flatten(train_b) - pca_state.mean) @ basis.T
+    za = f32_matmul(pca.flatten(train_a) - pca_state.mean, basis.T)
+    zb = f32_matmul(pca.flatten(train_b) - pca_state.mean, basis.T)
     scatter = within_place_scatter(za, zb)
     m = scatter.shape[0]
     target = jnp.trace(scatter) / m * jnp.eye(m, dtype=scatter.dtype)
@@ -67,11 +68,11 @@ def fit_lda(
     # Rows in pixel space: whitening of the PCA coordinates folded into one matrix, with
     # scikit-learn's sign convention (largest-magnitude entry of each eigenvector positive).
     rotation = pca.flip_signs(eigvecs.T)
-    transform = (rotation / jnp.sqrt(eigvals)[:, None]) @ basis
+    transform = f32_matmul(rotation / jnp.sqrt(eigvals)[:, None], basis)
     return LDAState(pca_state.mean, transform, eigvals)
 
 
 @jax.jit
 def encode(state: LDAState, images: Float[Array, "n ..."]) -> Float[Array, "n m"]:
     """Whitened coordinates of images centred with the training mean."""
-    return (pca.flatten(images) - state.mean) @ state.transform.T
+    return f32_matmul(pca.flatten(images) - state.mean, state.transform.T)

@@ -45,6 +45,7 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
 
 from vpr_jax import sharding
+from vpr_jax.precision import f32_matmul
 from vpr_jax.sharding import AXIS
 
 Solver = Literal["auto", "covariance", "gram", "subspace"]
@@ -105,7 +106,7 @@ class NotOrthonormal(ValueError):
 @jax.jit
 def orthonormality_error(components: Float[Array, "c d"]) -> Float[Array, ""]:
     """``max |C C^T - I|`` of the rows of ``components``."""
-    gram = components @ components.T
+    gram = f32_matmul(components, components.T)
     return jnp.max(jnp.abs(gram - jnp.eye(gram.shape[0], dtype=gram.dtype)))
 
 
@@ -160,7 +161,7 @@ def _scatter(x, mean, n_valid, first_row, block_rows: int):
     def block_scatter(block, start):
         valid = (start + jnp.arange(block.shape[0]) < n_valid)[:, None]
         xc = jnp.where(valid, block - mean, 0.0)
-        return xc.T @ xc
+        return f32_matmul(xc.T, xc)
 
     def body(acc, i):
         block = jax.lax.dynamic_slice_in_dim(x, i * block_rows, block_rows)
@@ -214,10 +215,10 @@ def _rayleigh_ritz(centred_times, n: int, basis, n_components: int) -> PCAState:
     ``centred_times(Q)``) rotate it. ``mean`` is filled in by the caller."""
     q, _ = jnp.linalg.qr(basis)
     b = centred_times(q)
-    small = b.T @ b
+    small = f32_matmul(b.T, b)
     eigvals, eigvecs = jnp.linalg.eigh((small + small.T) / 2)
     eigvals = eigvals[::-1][:n_components] / (n - 1)
-    components = (q @ eigvecs[:, ::-1][:, :n_components]).T
+    components = f32_matmul(q, eigvecs[:, ::-1][:, :n_components]).T
     return PCAState(None, flip_signs(components), jnp.maximum(eigvals, 0.0))
 
 
@@ -226,19 +227,21 @@ def _fit_gram(x: Float[Array, "n d"], n_components: int) -> PCAState:
     n = x.shape[0]
     mean = jnp.mean(x, axis=0)
     xc = x - mean
-    _, eigvecs = jnp.linalg.eigh(xc @ xc.T)
+    _, eigvecs = jnp.linalg.eigh(f32_matmul(xc, xc.T))
     # Right singular vectors from left ones, v_i = Xc^T u_i / sigma_i, hold only where
     # lambda_i stands well above rounding (on real frames they drift from orthogonal well
     # before the rank's floor); as a basis for Rayleigh-Ritz, they give exact components.
     leading = eigvecs[:, ::-1][:, :n_components]
-    return _rayleigh_ritz(lambda q: xc @ q, n, xc.T @ leading, n_components)._replace(mean=mean)
+    return _rayleigh_ritz(
+        lambda q: f32_matmul(xc, q), n, f32_matmul(xc.T, leading), n_components
+    )._replace(mean=mean)
 
 
 def _scatter_times(x, mean, v):
     """``X_c^T (X_c V)`` with ``X_c = x - mean``, without forming ``X_c``: the centring
     is applied to the (n, l) product, so no copy of the images is made."""
-    w = x @ v - mean @ v
-    return x.T @ w - jnp.outer(mean, jnp.sum(w, axis=0))
+    w = f32_matmul(x, v) - f32_matmul(mean, v)
+    return f32_matmul(x.T, w) - jnp.outer(mean, jnp.sum(w, axis=0))
 
 
 def _cholesky_inverse(gram, floor):
@@ -251,14 +254,15 @@ def _cholesky_inverse(gram, floor):
     rows = jnp.arange(size)
 
     def factor_column(j, low):
-        v = gram[:, j] - low @ low[j]  # columns >= j of low are still zero
+        v = gram[:, j] - f32_matmul(low, low[j])  # columns >= j of low are still zero
         pivot = jnp.sqrt(jnp.maximum(v[j], floor))
         return low.at[:, j].set(jnp.where(rows >= j, v / pivot, 0.0))
 
     low = jax.lax.fori_loop(0, size, factor_column, jnp.zeros_like(gram))
 
     def solve_row(i, inv):  # forward substitution of L Z = I, row by row
-        return inv.at[i].set((jnp.eye(size, dtype=gram.dtype)[i] - low[i] @ inv) / low[i, i])
+        row = jnp.eye(size, dtype=gram.dtype)[i] - f32_matmul(low[i], inv)
+        return inv.at[i].set(row / low[i, i])
 
     return jax.lax.fori_loop(0, size, solve_row, jnp.zeros_like(gram))
 
@@ -279,12 +283,13 @@ def _orthonormalise(y):
     a LAPACK call between the power iterations leaves OpenBLAS threads spinning, which slows
     the next product (docs/speed.md)."""
     for _ in range(2):
-        gram = y.T @ y
+        gram = f32_matmul(y.T, y)
         size = gram.shape[0]
         rounding = size * jnp.finfo(y.dtype).eps * jnp.max(jnp.diag(gram))
         shift = jnp.maximum(CHOLESKY_SHIFT * jnp.trace(gram) / size, rounding)
         shift = shift + jnp.finfo(y.dtype).tiny
-        y = y @ _cholesky_inverse(gram + shift * jnp.eye(gram.shape[0], dtype=y.dtype), shift).T
+        inverse = _cholesky_inverse(gram + shift * jnp.eye(gram.shape[0], dtype=y.dtype), shift)
+        y = f32_matmul(y, inverse.T)
     return y
 
 
@@ -299,7 +304,10 @@ def _fit_subspace(x, key, n_components: int, n_iter: int, oversample: int) -> PC
         basis = _orthonormalise(_scatter_times(x, mean, basis))
     # The last block through Householder QR and Rayleigh-Ritz: robust whatever the rank.
     state = _rayleigh_ritz(
-        lambda q: x @ q - mean @ q, n, _scatter_times(x, mean, basis), n_components
+        lambda q: f32_matmul(x, q) - f32_matmul(mean, q),
+        n,
+        _scatter_times(x, mean, basis),
+        n_components,
     )
     return state._replace(mean=mean)
 
@@ -367,7 +375,7 @@ def fit_pca(
 @jax.jit
 def project(state: PCAState, images: Float[Array, "n ..."]) -> Float[Array, "n c"]:
     """Coefficients of every component, centred with the TRAINING mean."""
-    return (flatten(images) - state.mean) @ state.components.T
+    return f32_matmul(flatten(images) - state.mean, state.components.T)
 
 
 @jax.jit
@@ -379,10 +387,10 @@ def suffix_descriptors(state, images: Float[Array, "n ..."]) -> Float[Array, "n 
     directions and the residual is orthogonal to them, so dot products and norms of the
     suffix are those of the k-removed descriptors."""
     x = flatten(images) - state.mean
-    coefficients = x @ state.components.T
+    coefficients = f32_matmul(x, state.components.T)
     if state.components.shape[0] == x.shape[1]:  # a complete basis: nothing is left over
         return coefficients
-    return jnp.concatenate([coefficients, x - coefficients @ state.components], axis=1)
+    return jnp.concatenate([coefficients, x - f32_matmul(coefficients, state.components)], axis=1)
 
 
 @functools.partial(jax.jit, static_argnames=("output",))
@@ -405,7 +413,8 @@ def encode(
     if output == "pixels":
         x = flatten(images) - state.mean
         first = jnp.arange(state.components.shape[0]) < removed_pcs
-        return x - jnp.where(first, x @ state.components.T, 0.0) @ state.components
+        kept = jnp.where(first, f32_matmul(x, state.components.T), 0.0)
+        return x - f32_matmul(kept, state.components)
     if output != "coefficients":
         raise ValueError(f"unknown output {output!r}: use coefficients or pixels")
     described = suffix_descriptors(state, images)

@@ -45,6 +45,7 @@ from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import checkpoints, objectives
 from vpr_jax.errors import UserError
 from vpr_jax.files import lock_folder
+from vpr_jax.precision import float32_products
 from vpr_jax.progress import Bar
 from vpr_jax.sharding import AXIS
 
@@ -162,6 +163,14 @@ def _optimizer(
     return optax.multi_transform({"trained": tx, "frozen": optax.set_to_zero()}, labels)
 
 
+# The programs whose products keep the platform's default precision (TF32 on recent NVIDIA
+# GPUs), by name: the training step, whose rounding is noise next to SGD's, and the
+# reconstructions training shows. Neither chooses anything: an epoch is kept by recall on
+# codes made at float32 (``ae.make_encode``), or by the validation loss (``make_eval_loss``),
+# also at float32. tests/test_precision.py holds every other program to float32.
+PLATFORM_PRECISION = ("train_step", "reconstruct")
+
+
 @functools.lru_cache(maxsize=32)  # per architecture: season pairs share compilations
 def make_train_step(
     graphdef,
@@ -255,7 +264,8 @@ def make_eval_loss(
     @jax.jit
     def per_example(params, batch, places):
         model = nnx.merge(graphdef, params)
-        return objectives.per_example_loss(objective, model, batch, temperature, places, radius)
+        with float32_products():  # it selects epochs where nothing validates by recall
+            return objectives.per_example_loss(objective, model, batch, temperature, places, radius)
 
     def eval_loss(params, examples: np.ndarray) -> float:
         losses = []

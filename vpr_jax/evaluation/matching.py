@@ -17,6 +17,11 @@ largest maxima hold the block's K best, and only their columns are ranked. On a 
 one read of the scores instead of ``lax.top_k``'s pass per row (docs/speed.md has the
 breakdown), and the scores are never scaled as a whole: the database norms are folded into
 the lane pass and only the candidates are scored in full.
+
+Precision: the products are float32 on every device unless ``precision="default"`` (the
+``matching.precision`` key) allows the platform's fastest, TF32 on recent NVIDIA GPUs
+(``vpr_jax.precision``): a faster product whose inputs are rounded to 10 bits of mantissa,
+so close scores can swap (docs/speed.md, "Any device").
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
 
 from vpr_jax import sharding
+from vpr_jax.precision import FLOAT32, matching_precision
 from vpr_jax.sharding import AXIS
 
 _EPS = 1e-12
@@ -100,8 +106,9 @@ def l2_normalize(x: Float[Array, "n d"], axis: int = -1) -> Float[Array, "n d"]:
 def cosine_similarity(
     query_desc: Float[Array, "nq d"], db_desc: Float[Array, "ndb d"]
 ) -> Float[Array, "nq ndb"]:
-    """Cosine similarity, (n_queries, n_db). A zero descriptor scores 0 against everything."""
-    return l2_normalize(query_desc) @ l2_normalize(db_desc).T
+    """Cosine similarity, (n_queries, n_db), at float32. A zero descriptor scores 0 against
+    everything."""
+    return jnp.matmul(l2_normalize(query_desc), l2_normalize(db_desc).T, precision=FLOAT32)
 
 
 class Suffixes(NamedTuple):
@@ -125,18 +132,18 @@ def suffixes(x: Float[Array, "n d"], starts: tuple[int, ...]) -> Suffixes:
     return Suffixes(segments, tuple(reversed(inv_norms)))
 
 
-def suffix_dots(query: Suffixes, db: Suffixes):
+def suffix_dots(query: Suffixes, db: Suffixes, precision: str = "float32"):
     """Yield (start index, dot product on features [start:], 1 / query norms, 1 / database
     norms) for every start, last start first; the cosine is ``dot * inv_q[:, None] *
-    inv_db[None, :]``.
+    inv_db[None, :]``. ``precision``: the products' (``matching.precision``).
 
     The dot product over a suffix is the sum of the segment products it covers, so walking
     the starts backwards adds one thin segment product at a time: every start together costs
     one full product plus one elementwise pass each.
     """
-    dot = 0.0
+    dot, product = 0.0, matching_precision(precision)
     for i in reversed(range(len(query.segments))):
-        dot = dot + query.segments[i] @ db.segments[i].T
+        dot = dot + jnp.matmul(query.segments[i], db.segments[i].T, precision=product)
         yield i, dot, query.inv_norms[i], db.inv_norms[i]
 
 
@@ -181,7 +188,9 @@ def block_top_k(
     return best, jnp.take_along_axis(cols, pos, axis=1)
 
 
-def _block_matches(queries: Suffixes, block, offset, n_db, k: int, starts: tuple[int, ...]):
+def _block_matches(
+    queries: Suffixes, block, offset, n_db, k: int, starts: tuple[int, ...], precision: str
+):
     """Every query block's K best of one database block (rows from ``offset`` on; those
     past ``n_db`` are padding): (query blocks, starts, query block rows, k)."""
     valid = offset + jnp.arange(block.shape[0]) < n_db
@@ -189,7 +198,7 @@ def _block_matches(queries: Suffixes, block, offset, n_db, k: int, starts: tuple
 
     def query_block(query: Suffixes):
         scores, idx = [None] * len(starts), [None] * len(starts)
-        for i, dot, inv_q, inv_db in suffix_dots(query, db):
+        for i, dot, inv_q, inv_db in suffix_dots(query, db, precision):
             # Top-K of the block for this start right away: the (qb, block) scores are never
             # stacked over starts, which keeps memory traffic to one pass per start.
             scores[i], pos = block_top_k(dot, inv_q, inv_db, valid, k)
@@ -199,7 +208,7 @@ def _block_matches(queries: Suffixes, block, offset, n_db, k: int, starts: tuple
     return jax.lax.map(query_block, queries)
 
 
-@functools.partial(jax.jit, static_argnames=("k", "block_size", "starts"))
+@functools.partial(jax.jit, static_argnames=("k", "block_size", "starts", "precision"))
 def _top_k_query_blocks(
     queries: Suffixes,
     db_desc: Float[Array, "ndb d"],
@@ -207,6 +216,7 @@ def _top_k_query_blocks(
     k: int,
     block_size: int,
     starts: tuple[int, ...],
+    precision: str,
     first_index: Int[Array, ""] = 0,
 ):
     """Running top-K of every query block (``queries``: ``suffixes`` of each block, stacked)
@@ -231,12 +241,14 @@ def _top_k_query_blocks(
 
     def whole_block(best, i):
         block = jax.lax.dynamic_slice_in_dim(db_desc, i * block_size, block_size)
-        new = _block_matches(queries, block, first_index + i * block_size, n_db, k, starts)
+        offset = first_index + i * block_size
+        new = _block_matches(queries, block, offset, n_db, k, starts, precision)
         return merged(best, new), None
 
     n_whole, lists = db_desc.shape[0] // block_size, []
     if n_whole == 1:  # its lists are the running ones: never merged with empty lists
-        lists.append(_block_matches(queries, db_desc[:block_size], first_index, n_db, k, starts))
+        first = db_desc[:block_size]
+        lists.append(_block_matches(queries, first, first_index, n_db, k, starts, precision))
     elif n_whole:  # empty lists, then every whole block in one loop (its body traced once)
         nb, qb = queries.inv_norms[0].shape
         empty = (
@@ -247,12 +259,14 @@ def _top_k_query_blocks(
     if db_desc.shape[0] % block_size:  # static: the tail, padded to a whole block
         tail = _blocks(db_desc[n_whole * block_size :], block_size)[0]
         offset = first_index + n_whole * block_size
-        lists.append(_block_matches(queries, tail, offset, n_db, k, starts))
+        lists.append(_block_matches(queries, tail, offset, n_db, k, starts, precision))
     return merged(*lists) if len(lists) == 2 else lists[0]
 
 
-@functools.partial(jax.jit, static_argnames=("k", "block_size", "query_block_size", "starts"))
-def _top_k_unpadded(query_desc, db_desc, k, block_size, query_block_size, starts):
+@functools.partial(
+    jax.jit, static_argnames=("k", "block_size", "query_block_size", "starts", "precision")
+)
+def _top_k_unpadded(query_desc, db_desc, k, block_size, query_block_size, starts, precision):
     """``_top_k_query_blocks`` on the descriptors as they are: the queries cut into blocks
     inside the compiled program (``_query_blocks``), the database read in place. Padding
     outside would take three copies of the database: the padded array, its reshape, and
@@ -264,6 +278,7 @@ def _top_k_unpadded(query_desc, db_desc, k, block_size, query_block_size, starts
         k,
         block_size,
         starts,
+        precision,
     )
 
 
@@ -291,7 +306,9 @@ def _merge_top_k(scores, indices, k: int):
 
 
 @functools.lru_cache(maxsize=16)
-def _sharded_top_k(mesh, k: int, block_size: int, query_block_size: int, starts: tuple[int, ...]):
+def _sharded_top_k(
+    mesh, k: int, block_size: int, query_block_size: int, starts: tuple[int, ...], precision: str
+):
     """``_top_k_query_blocks`` with the database blocks split across ``mesh``: every device
     keeps the K best of its own part, then the K-lists are gathered (in device order, so in
     database order) and merged. Queries are replicated."""
@@ -300,7 +317,7 @@ def _sharded_top_k(mesh, k: int, block_size: int, query_block_size: int, starts:
         first = jax.lax.axis_index(AXIS) * db_rows.shape[0]
         queries = _query_blocks(query_desc, query_block_size, starts)
         scores, idx = _top_k_query_blocks(
-            queries, db_rows, n_db, k, block_size, starts, first
+            queries, db_rows, n_db, k, block_size, starts, precision, first
         )  # (query blocks, starts, block, k)
         scores = jax.lax.all_gather(scores, AXIS, axis=3, tiled=True)
         idx = jax.lax.all_gather(idx, AXIS, axis=3, tiled=True)
@@ -322,6 +339,7 @@ def top_k_matches(
     block_size: int = 4096,
     query_block_size: int | None = None,
     mesh: Mesh | None = None,
+    precision: str = "float32",
 ) -> tuple[Float[np.ndarray, "s nq k"], Int[np.ndarray, "s nq k"]]:
     """The K best database matches of every query, best first, for every suffix start.
 
@@ -334,7 +352,10 @@ def top_k_matches(
 
     With a ``mesh`` the database is split across its devices (``vpr_jax.sharding``): each
     scores its part in the same blocks, and the per-device K-lists are merged.
+    ``precision``: the products' (``matching.precision``): ``"float32"``, or ``"default"``
+    for the platform's fastest (TF32 on recent NVIDIA GPUs).
     """
+    matching_precision(precision)  # an unknown name is refused before anything compiles
     # Host arrays for a mesh (put() hands each device its part); else on the device.
     query_desc, db_desc = (_as_input(x, mesh) for x in (query_desc, db_desc))
     n_db, d = db_desc.shape
@@ -354,12 +375,13 @@ def top_k_matches(
     query_block_size = min(query_block_size, nq)
     if mesh is None:
         scores, indices = _top_k_unpadded(
-            query_desc, db_desc, k, block_size, query_block_size, starts
+            query_desc, db_desc, k, block_size, query_block_size, starts, precision
         )
     else:
         # Every device gets whole blocks: the database is padded to a multiple of all of them.
         db_rows = sharding.pad_rows(db_desc, n_devices * block_size)  # whole blocks each
-        scores, indices = _sharded_top_k(mesh, k, block_size, query_block_size, starts)(
+        blocks = (block_size, query_block_size)
+        scores, indices = _sharded_top_k(mesh, k, *blocks, starts, precision)(
             sharding.put(query_desc, mesh, P()),
             sharding.put_rows(db_rows, mesh),
             jnp.int32(n_db),

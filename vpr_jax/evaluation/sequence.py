@@ -41,6 +41,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from vpr_jax.evaluation.matching import l2_normalize, top_k_matches
+from vpr_jax.precision import matching_precision
 
 DEFAULT_VELOCITIES = (0.8, 0.9, 1.0, 1.1, 1.2)
 SCORE_BUDGET = 1 << 20  # floats of one (block, n_db) array when blocks are automatic
@@ -161,10 +162,15 @@ def _smallest_k(cost: Float[Array, "b n"], k: int) -> tuple[Array, Array]:
     return jnp.stack(values, axis=1), jnp.stack(indices, axis=1).astype(jnp.int32)
 
 
-@functools.partial(jax.jit, static_argnames=("ds", "offsets", "window", "unique", "k", "block"))
-def _sequence_blocks(rows, db, q_stretch, db_stretch, *, ds, offsets, window, unique, k, block):
+@functools.partial(
+    jax.jit, static_argnames=("ds", "offsets", "window", "unique", "k", "block", "precision")
+)
+def _sequence_blocks(
+    rows, db, q_stretch, db_stretch, *, ds, offsets, window, unique, k, block, precision
+):
     """Every query block in turn. ``rows`` are similarity rows (``db`` None) or query
-    descriptors whose cosine rows against ``db`` each block computes for itself."""
+    descriptors whose cosine rows against ``db`` each block computes for itself, at
+    ``precision`` (``matching.precision``)."""
     nq = rows.shape[0]
     n_blocks = -(-nq // block)
     before, after = ds // 2, n_blocks * block - nq + ds - ds // 2 - 1
@@ -176,7 +182,7 @@ def _sequence_blocks(rows, db, q_stretch, db_stretch, *, ds, offsets, window, un
     def one(start):
         sim = jax.lax.dynamic_slice_in_dim(rows, start, block + ds - 1)
         if db is not None:
-            sim = sim @ db.T
+            sim = jnp.matmul(sim, db.T, precision=matching_precision(precision))
         own = jax.lax.dynamic_slice_in_dim(stretch, start, block + ds - 1)
         return _search_block(
             sim, own, db_stretch, ds=ds, offsets=offsets, window=window, unique=unique, k=k
@@ -223,7 +229,8 @@ def sequence_top_k_cosine(
     query_desc: Float[Array, "nq d"], db_desc: Float[Array, "ndb d"], ds: int = 10, **options
 ) -> tuple[Float[np.ndarray, "nq k"], Int[np.ndarray, "nq k"]]:
     """``sequence_top_k`` of the cosine similarity of descriptors (keyword options as
-    there), computed block by block: the full matrix is never held. ds = 1 is
+    there, and ``precision``: the products', as ``matching.top_k_matches`` takes it),
+    computed block by block: the full matrix is never held. ds = 1 is
     ``matching.top_k_matches``."""
     return _search(
         jnp.asarray(query_desc, jnp.float32), jnp.asarray(db_desc, jnp.float32), ds, **options
@@ -241,6 +248,7 @@ def _search(
     uniqueness_window=10,
     k=10,
     query_block_size=None,
+    precision="float32",
 ):
     """Similarity rows (``db`` None) or query descriptors against ``db`` descriptors."""
     nq, n_db = rows.shape[0], rows.shape[1] if db is None else db.shape[0]
@@ -260,7 +268,7 @@ def _search(
         if db is None:
             scores, idx = jax.lax.top_k(rows, k)
             return np.asarray(scores), np.asarray(idx)
-        scores, idx = top_k_matches(rows, db, k)
+        scores, idx = top_k_matches(rows, db, k, precision=precision)
         return scores[0], idx[0]
     block = query_block_size or max(1, SCORE_BUDGET // max(n_db, 1))
     scores, idx = _sequence_blocks(
@@ -274,5 +282,6 @@ def _search(
         unique=uniqueness_window,
         k=k,
         block=min(block, nq),
+        precision=precision,
     )
     return np.asarray(scores), np.asarray(idx)

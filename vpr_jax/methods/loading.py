@@ -25,6 +25,7 @@ from vpr_jax.encoders.fitted_state import restore_state
 from vpr_jax.encoders.saved import ENCODER_JSON, FIT_JSON, STATE, read_description
 from vpr_jax.errors import UserError
 from vpr_jax.method_table import MethodInfo, load_object
+from vpr_jax.precision import with_float32_products
 
 
 def _preprocess(description: dict) -> Callable[[jax.Array], jax.Array]:
@@ -118,7 +119,10 @@ def stored_encoder(folder: str | Path, served: dict | None = None, **asked) -> S
             f"{folder} needs {reference}, which this vpr_jax lacks: update it"
         ) from None
     return StoredEncoder(
-        encode=functools.partial(lambda fn, p, x: fn(p, x, **served), method_encode),
+        # as the sweep scored it: a user's products that state no precision at float32
+        encode=with_float32_products(
+            functools.partial(lambda fn, p, x: fn(p, x, **served), method_encode)
+        ),
         params=jax.tree.map(jnp.asarray, restore_state(folder / STATE)),
         preprocess=_preprocess(description),
     )

@@ -26,6 +26,7 @@ from vpr_jax.data.precomputed import OutsideSide, setting_key
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, Report
 from vpr_jax.methods.descriptors import degenerate
+from vpr_jax.precision import f32_matmul
 
 
 def checked_sides(
@@ -77,7 +78,7 @@ def fit(train, aligned, key, *, outside: Outside, database: str = "", queries: s
     projection = jax.random.normal(jax.random.key(0), (images.shape[1], FINGERPRINT))
     return {
         "projection": projection,
-        "fingerprints": jnp.asarray(images, jnp.float32) @ projection,
+        "fingerprints": f32_matmul(jnp.asarray(images, jnp.float32), projection),
         "rows": jnp.asarray(np.concatenate([r for _, r in parts]), jnp.float32),
         "covers_validation": jnp.bool_(held_out),
     }
@@ -91,10 +92,10 @@ def encode(state: dict, images: Float[Array, "n h w"]) -> Float[Array, "n d"]:
     """Each image's row: the one whose image has its fingerprint; NaN for an image the set
     does not describe (the runner refuses NaN descriptors, and a saved set used on other
     images says so rather than answer with another image's row)."""
-    fingerprints = jnp.reshape(images, (images.shape[0], -1)) @ state["projection"]
+    fingerprints = f32_matmul(jnp.reshape(images, (images.shape[0], -1)), state["projection"])
     table = state["fingerprints"]
     norms = jnp.sum(fingerprints**2, axis=1, keepdims=True)
-    distances = norms - 2 * fingerprints @ table.T + jnp.sum(table**2, axis=1)
+    distances = norms - 2 * f32_matmul(fingerprints, table.T) + jnp.sum(table**2, axis=1)
     nearest = jnp.argmin(distances, axis=1)
     found = jnp.min(distances, axis=1) <= MATCH_TOLERANCE * (norms[:, 0] + 1.0)
     return jnp.where(found[:, None], state["rows"][nearest], jnp.nan)
