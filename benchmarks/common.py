@@ -29,6 +29,23 @@ def timed(fn, repeats: int) -> tuple[float, float]:
     return first, statistics.median(runs) if runs else first
 
 
+def timed_alternately(fns, repeats: int) -> list[float]:
+    """The median warm seconds of each of ``fns``, called in turn ``repeats`` times after a
+    first call each: alternating, so the box's drift from minute to minute (10-50% here)
+    falls on every one alike."""
+    import jax
+
+    for fn in fns:
+        jax.block_until_ready(fn())
+    runs = [[] for _ in fns]
+    for _ in range(max(repeats, 1)):
+        for fn, out in zip(fns, runs, strict=True):
+            start = time.perf_counter()
+            jax.block_until_ready(fn())
+            out.append(time.perf_counter() - start)
+    return [statistics.median(r) for r in runs]
+
+
 # ``--tiny``, in every script: a run of seconds that exercises the whole script for the
 # tests (tests/test_benchmark_scripts.py), on data too small for its figures to mean anything.
 TINY_HELP = "a seconds-long run for the tests: sizes shrink, the figures mean nothing"

@@ -66,9 +66,10 @@ def lowered_programs() -> Iterator[dict[str, list[str]]]:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def jaxpr_of(fn, *args) -> dict[str, list[str]]:
-    """``{"traced": [the jaxpr of fn(*args)]}``: a jitted function's, nested calls inline."""
-    return {"traced": [str(jax.make_jaxpr(fn)(*args))]}
+def jaxpr_of(fn, *args) -> list[str]:
+    """``[the jaxpr of fn(*args)]``, as ``lowered_programs`` lists a program's: a jitted
+    function's with its nested calls inline, traced, not compiled."""
+    return [str(jax.make_jaxpr(fn)(*args))]
 
 
 def products(jaxpr: str) -> list[str]:
@@ -109,9 +110,9 @@ def test_the_reader_finds_an_unpinned_product_and_passes_a_pinned_one():
 
     a = jnp.ones((4, 3))
     programs = {
-        "plain": jaxpr_of(jax.jit(lambda x: x @ x.T), a)["traced"],
-        "stated": jaxpr_of(jax.jit(lambda x: f32_matmul(x, x.T)), a)["traced"],
-        "traced": jaxpr_of(jax.jit(traced), a)["traced"],
+        "plain": jaxpr_of(jax.jit(lambda x: x @ x.T), a),
+        "stated": jaxpr_of(jax.jit(lambda x: f32_matmul(x, x.T)), a),
+        "traced": jaxpr_of(jax.jit(traced), a),
     }
     assert n_products(programs) == 3
     assert set(unpinned(programs)) == {"plain"}
@@ -194,7 +195,7 @@ def test_load_encoder_hands_out_the_float32_encoders_the_sweep_scored(swept, mon
     with jax.default_matmul_precision("bfloat16"):
         for path in folders:
             encode, params = load_encoder(path)
-            programs[path.name] = jaxpr_of(encode, params, images)["traced"]
+            programs[path.name] = jaxpr_of(encode, params, images)
     assert n_products(programs) >= len(folders)
     assert not unpinned(programs)
 
@@ -226,7 +227,7 @@ def test_matching_precision_default_leaves_the_products_to_the_platform():
         sequences = jaxpr_of(
             functools.partial(sequence_blocks, ds=3, precision=precision), query, db
         )
-        kinds[precision] = {"matcher": ranked["traced"], "sequence": sequences["traced"]}
+        kinds[precision] = {"matcher": ranked, "sequence": sequences}
     assert n_products(kinds["float32"]) >= 3 and not unpinned(kinds["float32"])
     assert set(unpinned(kinds["default"])) == {"matcher", "sequence"}
 
