@@ -21,6 +21,7 @@ from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from tests.conftest import SMALL
+from tests.programs import jaxpr_of, n_products, unpinned
 from vpr_jax import sharding
 from vpr_jax.config import TrainConfig
 from vpr_jax.data.augment import AugmentConfig
@@ -33,6 +34,7 @@ from vpr_jax.encoders.train import (
     make_optimizer,
     make_train_step,
 )
+from vpr_jax.evaluation import matching
 from vpr_jax.evaluation.matching import top_k_matches
 
 
@@ -64,6 +66,19 @@ def main() -> None:
     out["match_same_indices"] = bool((i1 == i2).all())
     out["match_scores"] = float(np.abs(s1 - s2).max())
     out["match_tie_order"] = i2[0, 7, :3].tolist()  # query 7 equals db rows 3, 500 and 900
+
+    # The sharded programs state float32 as the one-device ones do (test_precision.py).
+    sharded = {
+        "moments": jaxpr_of(pca._sharded_moments(mesh, 64), x[:1000], np.float32(1000)),
+        "top_k": jaxpr_of(
+            matching._sharded_top_k(mesh, 10, 64, 301, (0, 5, 20), "float32"),
+            q,
+            np.zeros((1024, 40), np.float32),
+            np.int32(997),
+        ),
+    }
+    out["sharded_products"] = n_products(sharded)
+    out["sharded_unpinned"] = sorted(unpinned(sharded))
 
     # Auto-encoder training, data parallel: batches of 16 (2 per device); the CAE's
     # 32-to-32 convolution takes the custom-gradient path of vpr_jax.encoders.conv.

@@ -67,6 +67,12 @@ def test_pca_with_samples_split_over_devices_equals_one_device(checks):
     assert checks["pca_mean"] < 1e-6
 
 
+def test_the_sharded_fit_and_matcher_state_float32(checks):
+    """The PCA scatter and the matcher split over devices: every product float32."""
+    assert checks["sharded_products"] >= 3
+    assert checks["sharded_unpinned"] == []
+
+
 def test_matching_with_the_database_split_equals_one_device(checks):
     assert checks["match_same_indices"]
     assert checks["match_scores"] < 1e-6
