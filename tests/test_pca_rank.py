@@ -144,3 +144,24 @@ def test_a_fit_that_is_not_orthonormal_is_refused():
     with pytest.raises(pca.NotOrthonormal, match="not orthonormal"):
         pca.check_orthonormal(broken, "gram")
     pca.check_orthonormal(state, "gram")
+
+
+def test_a_full_solve_below_the_rank_writes_the_residual_on_its_other_eigenvectors():
+    """The covariance solver keeps the eigenvectors beyond the rank as the complement: the
+    descriptors are D wide (not rank + D), and the cosine on every suffix [k:] is the
+    cosine of the k-removed images in pixels (numpy's)."""
+    train = _repeated()
+    state = pca.fit_pca(train, solver="covariance")
+    assert len(state.components) < D and len(state.components) + len(state.complement) == D
+    rng = np.random.default_rng(8)
+    images = train[:30] + rng.normal(size=(30, D)).astype(np.float32)
+    described = np.asarray(pca.suffix_descriptors(state, images), np.float64)
+    assert described.shape == (30, D)
+    x, comps = images - np.asarray(state.mean), np.asarray(state.components, np.float64)
+    for k in (0, 3, 10):
+        removed = x - (x @ comps[:k].T) @ comps[:k]
+        np.testing.assert_allclose(
+            cosine_similarity(described[:, k:], described[:, k:]),
+            cosine_similarity(removed, removed),
+            atol=1e-5,
+        )

@@ -25,7 +25,9 @@ variance is below the rank's floor are dropped. ``fit_pca`` checks the result
 A removed count's descriptor has two forms with the same cosine similarities:
 - ``output="coefficients"``: ``[c_1 .. c_K, r]`` with the first k coefficients zeroed, ``c``
   the coefficients on the K fitted components and ``r`` the residual after all K (left out
-  when the components span every pixel). The features ``[k:]`` of ``suffix_descriptors``
+  when the components span every pixel; on the covariance solver's remaining eigenvectors,
+  ``PCAState.complement``, D - K values, where the fit holds them, as a full solve does
+  below the numerical rank). The features ``[k:]`` of ``suffix_descriptors``
   are the k-removed descriptor, so one matching pass scores every k (``starts=ks``);
 - ``output="pixels"``: the descriptor in pixel space, as the seed back-projected it.
 """
@@ -57,6 +59,10 @@ class PCAState(NamedTuple):
     mean: Float[Array, " d"]  # training mean, subtracted from every image before projecting
     components: Float[Array, "c d"]  # orthonormal rows, descending variance, deterministic sign
     explained_variance: Float[Array, " c"]  # eigenvalues of the sample covariance (ddof=1)
+    # Orthonormal rows completing the components to a basis of every pixel, where the solver
+    # found them (the covariance solver's other eigenvectors: those past n_components or
+    # below the numerical rank); None otherwise. Only suffix_descriptors reads them.
+    complement: Float[Array, "r d"] | None = None
 
 
 def flatten(images: Float[Array, "n ..."]) -> Float[Array, "n d"]:
@@ -115,8 +121,11 @@ def orthonormality_error(components: Float[Array, "c d"]) -> Float[Array, ""]:
 def check_orthonormal(state: PCAState, solver: str) -> None:
     """``NotOrthonormal`` unless the fit's components are orthonormal within tolerance:
     such a fit is not PCA, and every method built on it would score nonsense without a
-    word."""
-    error = float(orthonormality_error(state.components))
+    word. A complement (``PCAState.complement``) is checked with them: the suffix
+    descriptors' equality with each removed count's rests on the whole basis."""
+    rest = getattr(state, "complement", None)
+    rows = state.components if rest is None else jnp.concatenate([state.components, rest])
+    error = float(orthonormality_error(rows))
     if not error < ORTHONORMAL_TOLERANCE:  # NaN fails too
         raise NotOrthonormal(
             f"the {solver} PCA solver gave components that are not orthonormal (max |C C^T "
@@ -205,9 +214,14 @@ def _sharded_moments(mesh, block_rows: int):
 @functools.partial(jax.jit, static_argnames=("n_components",))
 def _from_scatter(mean, scatter, n, n_components: int) -> PCAState:
     eigvals, eigvecs = jnp.linalg.eigh(scatter / (n - 1))
-    eigvals = eigvals[::-1][:n_components]
-    components = eigvecs[:, ::-1][:, :n_components].T
-    return PCAState(mean, flip_signs(components), jnp.maximum(eigvals, 0.0))
+    eigvals, eigvecs = eigvals[::-1], eigvecs[:, ::-1].T  # descending, one a row
+    components = flip_signs(eigvecs[:n_components])
+    return PCAState(
+        mean=mean,
+        components=components,
+        explained_variance=jnp.maximum(eigvals[:n_components], 0.0),
+        complement=eigvecs[n_components:],
+    )
 
 
 def _rayleigh_ritz(centred_times, n: int, basis, n_components: int) -> PCAState:
@@ -221,7 +235,9 @@ def _rayleigh_ritz(centred_times, n: int, basis, n_components: int) -> PCAState:
     eigvals, eigvecs = jnp.linalg.eigh((small + small.T) / 2)
     eigvals = eigvals[::-1][:n_components] / (n - 1)
     components = f32_matmul(q, eigvecs[:, ::-1][:, :n_components]).T
-    return PCAState(None, flip_signs(components), jnp.maximum(eigvals, 0.0))
+    return PCAState(
+        mean=None, components=flip_signs(components), explained_variance=jnp.maximum(eigvals, 0.0)
+    )
 
 
 @functools.partial(jax.jit, static_argnames=("n_components",))
@@ -363,15 +379,25 @@ def fit_pca(
             rows = sharding.put_rows(sharding.pad_rows(x, sharding.mesh_size(mesh)), mesh)
             mean, scatter = _sharded_moments(mesh, block_rows)(rows, jnp.float32(n))
         state = _from_scatter(mean, scatter, n, n_components)
+    state = within_rank(state, n, d)
+    check_orthonormal(state, chosen)
+    return state
+
+
+def within_rank(state: PCAState, n: int, d: int) -> PCAState:
+    """``state`` less the components beyond the numerical rank of its ``n`` x ``d`` training
+    images (host slices); those still complete the basis where it has a complement."""
     kept = numerical_rank(state.explained_variance, n, d)
     if kept < 1:
         raise ValueError(f"PCA of {n} training images found no variance: every image is the same")
-    if kept < n_components:  # host slices: the components the data hold
-        state = state._replace(
-            components=state.components[:kept], explained_variance=state.explained_variance[:kept]
-        )
-    check_orthonormal(state, chosen)
-    return state
+    if kept == len(state.components):
+        return state
+    rest = state.complement
+    return state._replace(
+        components=state.components[:kept],
+        explained_variance=state.explained_variance[:kept],
+        complement=None if rest is None else jnp.concatenate([state.components[kept:], rest]),
+    )
 
 
 @jax.jit
@@ -383,15 +409,21 @@ def project(state: PCAState, images: Float[Array, "n ..."]) -> Float[Array, "n c
 @jax.jit
 def suffix_descriptors(state, images: Float[Array, "n ..."]) -> Float[Array, "n e"]:
     """``[c_1 .. c_K, r]``: coefficients on the K components of ``state`` (anything with
-    orthonormal ``components`` rows and a ``mean``) and the residual after all K; left out
-    when the components span every pixel. Cosine on the features ``[k:]`` equals cosine of
+    orthonormal ``components`` rows and a ``mean``) and the residual after all K: left out
+    when the components span every pixel, its coordinates on ``state.complement`` where the
+    fit holds the rest of a basis (D values a row in all, not K + D), else the residual
+    itself in pixels. Cosine on the features ``[k:]`` equals cosine of
     ``encode(state, images, k)`` for every k <= K: the coefficients lie on orthonormal
     directions and the residual is orthogonal to them, so dot products and norms of the
     suffix are those of the k-removed descriptors."""
     x = flatten(images) - state.mean
     coefficients = f32_matmul(x, state.components.T)
-    if state.components.shape[0] == x.shape[1]:  # a complete basis: nothing is left over
+    n_components, n_pixels = state.components.shape
+    if n_components == n_pixels:  # a complete basis: nothing is left over
         return coefficients
+    rest = getattr(state, "complement", None)
+    if rest is not None and n_components + rest.shape[0] == n_pixels:
+        return jnp.concatenate([coefficients, f32_matmul(x, rest.T)], axis=1)
     return jnp.concatenate([coefficients, x - f32_matmul(coefficients, state.components)], axis=1)
 
 
@@ -406,7 +438,8 @@ def encode(
     ``removed_pcs`` components (at most K = ``len(state.components)``).
 
     ``output="coefficients"``: ``suffix_descriptors`` with the first ``removed_pcs``
-    features zeroed, shape (n, K + D), or (n, K) for a complete basis; ``"pixels"``: the
+    features zeroed, shape (n, K + D), or (n, D) for a complete basis or one completed by
+    ``state.complement``; ``"pixels"``: the
     same descriptor in pixel space, (n, D). Both give the same cosine similarities. Zeroing
     instead of slicing keeps the shape fixed, so one compiled function serves every count
     and ``jax.vmap`` over a vector of counts works (``state`` may be any fit with a
