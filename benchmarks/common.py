@@ -29,6 +29,25 @@ def timed(fn, repeats: int) -> tuple[float, float]:
     return first, statistics.median(runs) if runs else first
 
 
+def cpu_name() -> str:
+    """The CPU a figure was measured on, as /proc/cpuinfo names it, with its family and
+    model (one name covers several boxes: an Intel Xeon reads "Intel(R) Xeon(R)
+    Processor") and the cores this process may use; "unknown CPU" where there is no
+    /proc/cpuinfo."""
+    fields = {}
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                fields.setdefault(key.strip(), value.strip())
+    except OSError:
+        return "unknown CPU"
+    name = fields.get("model name", "unknown CPU")
+    family, model = fields.get("cpu family"), fields.get("model")
+    kind = f" (family {family} model {model})" if family and model else ""
+    return f"{name}{kind}, {len(os.sched_getaffinity(0))} cores"
+
+
 def timed_alternately(fns, repeats: int) -> list[float]:
     """The median warm seconds of each of ``fns``, called in turn ``repeats`` times after a
     first call each: alternating, so the box's drift from minute to minute (10-50% here)

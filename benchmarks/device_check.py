@@ -15,8 +15,8 @@ Exit code 0 when the tests pass and the two sweeps agree, 1 otherwise; the lines
 Where the device is the CPU, step 2 compares two CPU runs (they must be identical).
 
 ``--tiny`` (for the tests): five oracle tests, a 400-frame sweep of raw and PCA, and
-``run_all.py --tiny --skip-scaling``. ``--out``: keep both sweeps' logdirs there
-(default: a temporary folder, removed).
+``run_all.py --tiny --skip-scaling``. ``--out``: keep both sweeps' logdirs and run_all's
+table as JSON there (default: a temporary folder, removed).
 """
 
 from __future__ import annotations
@@ -164,27 +164,11 @@ def largest_difference(device: list[ResultRow], cpu: list[ResultRow], metric: st
     return max(diffs, default=0.0)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
-    parser.add_argument("--out", type=Path, default=None, help="keep both sweeps' logdirs here")
-    args = parser.parse_args()
-    start = time.perf_counter()
-    device, platform = jax.devices()[0], platform_name()
-    print(
-        f"device: {device.device_kind} ({platform}), jax {jax.__version__}, "
-        f"{jax.device_count()} device(s)",
-        flush=True,
-    )
-
-    print("\n1. oracle tests on the device", flush=True)
-    tests_pass = oracle_tests(platform, args.tiny)
-
-    print("\n2. the default sweep on the device and on the CPU", flush=True)
-    with tempfile.TemporaryDirectory(prefix="vpr_jax-device-") as tmp:
-        out = args.out or Path(tmp)
-        on_device = sweep(platform, out / "device", args.tiny)
-        on_cpu = sweep("cpu", out / "cpu", args.tiny)
+def sweeps_agree(platform: str, out: Path, tiny: bool) -> bool:
+    """Step 2: the default sweep on ``platform`` and on the CPU, compared; the lines say
+    how."""
+    on_device = sweep(platform, out / "device", tiny)
+    on_cpu = sweep("cpu", out / "cpu", tiny)
     problems = compare(on_device, on_cpu, RECALL_TOLERANCE)
     for line in problems:
         print(f"  differs: {line}")
@@ -195,16 +179,42 @@ def main() -> None:
         f"{largest_difference(on_device, on_cpu, 'auc_pr'):.4f}",
         flush=True,
     )
+    return not problems
 
-    print("\n3. run_all on the device", flush=True)
-    proc = run(
-        [sys.executable, "benchmarks/run_all.py", *(TINY_RUN_ALL if args.tiny else RUN_ALL)],
-        platform,
-    )
+
+def run_all(platform: str, out: Path, tiny: bool) -> bool:
+    """Step 3: run_all's table on ``platform`` (and as JSON in ``out``)."""
+    options = [*(TINY_RUN_ALL if tiny else RUN_ALL), "--json", str(out / "run_all.json")]
+    proc = run([sys.executable, "benchmarks/run_all.py", *options], platform)
     print(proc.stdout, flush=True)
     if proc.returncode != 0:
         print(proc.stderr[-3000:])
-    agreed = tests_pass and not problems and proc.returncode == 0
+    return proc.returncode == 0
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
+    parser.add_argument(
+        "--out", type=Path, default=None, help="keep both sweeps' logdirs and run_all's JSON here"
+    )
+    args = parser.parse_args()
+    start = time.perf_counter()
+    device, platform = jax.devices()[0], platform_name()
+    print(
+        f"device: {device.device_kind} ({platform}), jax {jax.__version__}, "
+        f"{jax.device_count()} device(s)",
+        flush=True,
+    )
+    print("\n1. oracle tests on the device", flush=True)
+    tests_pass = oracle_tests(platform, args.tiny)
+    with tempfile.TemporaryDirectory(prefix="vpr_jax-device-") as tmp:
+        out = args.out or Path(tmp)
+        print("\n2. the default sweep on the device and on the CPU", flush=True)
+        agree = sweeps_agree(platform, out, args.tiny)
+        print("\n3. run_all on the device", flush=True)
+        benchmarked = run_all(platform, out, args.tiny)
+    agreed = tests_pass and agree and benchmarked
     print(
         f"device check {'passed' if agreed else 'FAILED'} on {device.device_kind} in "
         f"{time.perf_counter() - start:.0f} s"

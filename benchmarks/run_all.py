@@ -1,7 +1,7 @@
 """Every speed goal in one table, each row a ratio to the peer timed in this same run.
 
     python benchmarks/run_all.py [--repeats 3] [--skip-protocol] [--protocol-args "k=v ..."]
-                                 [--tiny]
+                                 [--json runs/run_all.json] [--tiny]
 
 Rows (seed's sizes: 5,000 x 2,048 training images, 3,569 queries x 3,569 database):
   PCA fit, every component   vs scikit-learn PCA(svd_solver="covariance_eigh")   <= 1.0x
@@ -30,6 +30,9 @@ temporary logdir and checkpoint folder (three pairs x raw, six PCA counts, six I
 FAE, CAE; compilation and data generation included), with its peak RSS. ``--skip-protocol``,
 ``--skip-full-route`` and ``--skip-scaling`` leave out the three longest rows;
 ``--scaling-plot PATH`` draws the scaling exponents' log-log plot (docs/scaling_speed.png).
+It prints the CPU (``/proc/cpuinfo``'s name, family and model: one name covers several
+boxes) beside jax's device and the BLAS libraries, and writes the table with them as JSON
+(``--json``, default runs/run_all.json), so a figure can be compared with the next run's.
 Ours: warm medians of --repeats runs in this process; peers the same, each in a fresh
 process without OPENBLAS_CORETYPE / OPENBLAS_L2_SIZE (``peers.py``: their native kernel).
 ``--tiny`` (for the tests; the figures mean nothing): ``common.TINY_SIZES`` on both sides,
@@ -40,7 +43,9 @@ tiny route, ``TINY_PROTOCOL``), scaling at ``scaling.TINY_FRAMES``, and no whole
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -53,6 +58,7 @@ from bench_linear import REMOVED_PCS
 from bench_sequence import measure as measure_sequence
 from common import (
     TINY_HELP,
+    cpu_name,
     ica_components,
     route_sizes,
     seed_route,
@@ -69,6 +75,7 @@ from scaling import plot as plot_scaling
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import ica, pca
 from vpr_jax.evaluation.matching import top_k_matches
+from vpr_jax.files import atomic_write_text
 from vpr_jax.method_table import METHODS
 from vpr_jax.outputs.results import read_results
 from vpr_jax.precision import f32_matmul
@@ -110,6 +117,13 @@ class Table:
             (what, fmt(ours), f"{peer_name} {fmt(peer)}", f"{ratio:.3f}x", f"<= {goal:g}x", met)
         )
         print(f"  {what}: {ratio:.3f}x", flush=True)
+
+    def write_json(self, path: Path, about: dict) -> None:
+        """The table as JSON (``about``: the box, the versions, the date), written whole."""
+        names = ("what", "ours", "peer", "ratio", "goal", "met")
+        rows = [dict(zip(names, row, strict=True)) for row in self.rows]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, json.dumps({**about, "rows": rows}, indent=1) + "\n")
 
     def print(self) -> None:
         header = ("what", "ours", "peer, same run", "ratio", "goal", "met")
@@ -292,17 +306,24 @@ def main() -> None:
         default="",
         help="extra key=value overrides for the paper protocol, space-separated",
     )
+    parser.add_argument(
+        "--json", type=Path, default=Path("runs/run_all.json"), help="the table as JSON here"
+    )
     parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
     args = parser.parse_args()
     if args.repeats is None:
         args.repeats = 1 if args.tiny else 3
     start = time.perf_counter()
     device = jax.devices()[0]
-    print(
-        f"jax {jax.__version__} on {device.platform} ({device.device_kind}), "
-        f"{jax.device_count()} device(s), os.cpu_count() = {os.cpu_count()}",
-        flush=True,
-    )
+    about = {
+        "cpu": cpu_name(),
+        "device": f"{device.platform} ({device.device_kind}), {jax.device_count()} device(s)",
+        "jax": jax.__version__,
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+        "arguments": " ".join(sys.argv[1:]),
+    }
+    print(f"jax {about['jax']} on {about['device']}, os.cpu_count() = {os.cpu_count()}")
+    print(f"cpu: {about['cpu']}", flush=True)
 
     table = Table()
     train, db, query = seed_route(**route_sizes(args.tiny))
@@ -321,7 +342,8 @@ def main() -> None:
         scaling_rows(table, max(1, args.repeats // 2), args.scaling_plot, frames, args.tiny)
     print()
     table.print()
-    print(f"\ntotal {time.perf_counter() - start:.0f} s")
+    table.write_json(args.json, about)
+    print(f"\ntotal {time.perf_counter() - start:.0f} s; the table as JSON: {args.json}")
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ import json
 import re
 import runpy
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -57,11 +58,17 @@ def line_matching(out: str, pattern: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def device_check_out() -> str:
-    """What ``device_check.py --tiny`` prints: on the CPU, where the "device" is the CPU.
-    It runs ``run_all.py --tiny --skip-scaling`` as its last step, which test_run_all
-    reads."""
-    return run_script("device_check.py", "--tiny")
+def device_check_run(tmp_path_factory) -> tuple[str, Path]:
+    """What ``device_check.py --tiny`` prints, on the CPU, where the "device" is the CPU,
+    and its ``--out`` folder. Its last step is ``run_all.py --tiny --skip-scaling``, which
+    test_run_all reads (its table as JSON: ``run_all.json`` there)."""
+    out = tmp_path_factory.mktemp("device_check")
+    return run_script("device_check.py", "--tiny", "--out", str(out)), out
+
+
+@pytest.fixture(scope="module")
+def device_check_out(device_check_run) -> str:
+    return device_check_run[0]
 
 
 def test_device_check(device_check_out):
@@ -75,10 +82,18 @@ def test_device_check(device_check_out):
     line_matching(out, r"^device check passed on ")
 
 
-def test_run_all(device_check_out):
+def test_run_all(device_check_run):
     """Every row but the scaling exponents: those are scaling.py's ``measure`` at the same
-    tiny lengths (test_scaling), three more fresh processes this test leaves out."""
-    out = device_check_out[device_check_out.index("3. run_all") :]
+    tiny lengths (test_scaling), three more fresh processes this test leaves out. The CPU
+    is named, and the JSON holds the table as printed."""
+    printed, folder = device_check_run
+    out = printed[printed.index("3. run_all") :]
+    cpu = line_matching(out, r"^cpu: .+, \d+ cores$").removeprefix("cpu: ")
+    table_json = json.loads((folder / "run_all.json").read_text())
+    assert table_json["cpu"] == cpu and table_json["jax"] and table_json["date"]
+    for row in table_json["rows"]:
+        line_matching(out, "^" + re.escape(row["what"]) + r"\s+" + re.escape(row["ours"]))
+    assert len(table_json["rows"]) >= 14
     header = line_matching(out, r"^what\s+ours\s+peer, same run\s+ratio\s+goal\s+met$")
     table = out[out.index(header) :]
     for row in (
@@ -95,7 +110,7 @@ def test_run_all(device_check_out):
     assert "whole route (preset=full) peak RSS: left out with --tiny" in out
     # pca at two removed-PC counts and the FAE
     line_matching(out, r"^  3 cells, peak RSS \d+\.\d+ GiB; training seconds \{'fae': \d")
-    line_matching(out, r"^total \d+ s$")
+    line_matching(out, r"^total \d+ s; the table as JSON: ")
 
 
 def test_bench_linear(capfd):
