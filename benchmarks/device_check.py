@@ -95,18 +95,19 @@ def environment(platform: str) -> dict:
 
 
 def run(cmd: list[str], platform: str) -> subprocess.CompletedProcess:
-    """``cmd`` in the repository on ``platform``, its output printed as it was captured."""
-    print(f"$ JAX_PLATFORMS={environment(platform)['JAX_PLATFORMS']} {' '.join(cmd)}", flush=True)
-    proc = subprocess.run(
+    """``cmd`` in the repository on ``platform`` (the command line printed), its output
+    captured."""
+    env = environment(platform)
+    print(f"$ JAX_PLATFORMS={env['JAX_PLATFORMS']} {' '.join(cmd)}", flush=True)
+    return subprocess.run(
         cmd,
         cwd=REPO,
-        env=environment(platform),
+        env=env,
         capture_output=True,
         text=True,
         timeout=STEP_TIMEOUT_S,
         check=False,
     )
-    return proc
 
 
 def oracle_tests(platform: str, tiny: bool) -> bool:

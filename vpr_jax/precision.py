@@ -7,8 +7,9 @@ at float32 accuracy says so where it is written, not through a global flag, so a
 imports vpr_jax and sets its own default still gets the numbers the suite scored:
 
 - ``f32_matmul(a, b)``: ``a @ b`` at float32 on every device. The fits (scatter, Gram and
-  Rayleigh-Ritz products, projections, whitening, FastICA's updates and its convergence
-  test), the checks on them (orthonormality) and every built-in encoder use it.
+  Rayleigh-Ritz products, projections, whitening, FastICA's updates, on which its
+  elementwise convergence test is taken), the checks on them (orthonormality) and every
+  built-in encoder use it.
 - ``float32_products()``: float32 as the default of the products traced inside it that
   state none, for code that takes no precision argument: the auto-encoders' Flax layers
   when they make codes (not when they train), and a user's method (its fit and encode), so

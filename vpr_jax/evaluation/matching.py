@@ -40,7 +40,7 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
 
 from vpr_jax import sharding
-from vpr_jax.precision import FLOAT32, matching_precision
+from vpr_jax.precision import f32_matmul, matching_precision
 from vpr_jax.sharding import AXIS
 
 _EPS = 1e-12
@@ -108,7 +108,7 @@ def cosine_similarity(
 ) -> Float[Array, "nq ndb"]:
     """Cosine similarity, (n_queries, n_db), at float32. A zero descriptor scores 0 against
     everything."""
-    return jnp.matmul(l2_normalize(query_desc), l2_normalize(db_desc).T, precision=FLOAT32)
+    return f32_matmul(l2_normalize(query_desc), l2_normalize(db_desc).T)
 
 
 class Suffixes(NamedTuple):
