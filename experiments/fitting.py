@@ -28,6 +28,7 @@ from experiments.resolve import needs as resolve_needs
 from experiments.saving import save_state
 from vpr_jax.data.pair import PairData, with_train_places
 from vpr_jax.errors import UserError, first_line
+from vpr_jax.host_arrays import release_free_memory
 from vpr_jax.method_table import MethodInfo
 from vpr_jax.methods.contract import (
     SERVED,
@@ -288,6 +289,7 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
     db, query, ms = encode_pair(encode, data)
     warning = "; ".join(w for w in (first.warning, degenerate_warning(db, query)) if w) or None
     val_db, val_query = encode_validation(encode, data) if first.validation else (None, None)
+    release_free_memory()  # the encoder's temporaries, before the matcher takes its own
     shape, (own, shared) = data.train.shape[1:], seconds
     n_train = len(fitted_on(fit, run).train)
     return Descriptors(

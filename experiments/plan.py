@@ -18,6 +18,7 @@ from experiments import resolve  # loads each method's module (JAX) only when it
 from vpr_jax.config import (
     BENCHMARK_PAIRS,
     BENCHMARK_SOURCES,
+    DataConfig,
     MeshConfig,
     SequenceConfig,
     SweepConfig,
@@ -163,7 +164,7 @@ def make_plan(
     methods = resolve.resolve_methods(cfg, aligned, cfg.data.source, asked)
     _check_baseline(cfg, methods, given)
     shared = resolve.shared_fits(cfg)
-    data = _load(cfg, benchmark, log)
+    data = _load(cfg, benchmark, pairs, log)
     _check_train_places(cfg, data)
     mesh = start_devices(cfg.mesh, log)
     n_images, n_pixels = data.n_train, data.n_pixels
@@ -279,10 +280,10 @@ class _Data(NamedTuple):
     n_pixels: int
 
 
-def _load(cfg: SweepConfig, benchmark: bool, log: Log) -> _Data:
+def _load(cfg: SweepConfig, benchmark: bool, pairs, log: Log) -> _Data:
     """The route and its split, or the benchmark (and its training route)."""
     prep = (cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded, log)
-    data = load_data(cfg.data, cfg.seed, log)
+    data = load_data(_seasons_read(cfg.data, benchmark, pairs), cfg.seed, log)
     if not benchmark:
         route = preprocess_route(data, *prep)
         split = make_split(route.frame_ids, cfg.split)
@@ -324,6 +325,18 @@ def _load(cfg: SweepConfig, benchmark: bool, log: Log) -> _Data:
         n_train=2 * len(split.train),
         n_pixels=bench.db[0].size,
     )
+
+
+def _seasons_read(data: DataConfig, benchmark: bool, pairs) -> DataConfig:
+    """``data`` rendering only the seasons ``pairs`` name, where that changes nothing but
+    the cost: the built-in route's seasons are rendered on the same frames each (a season of
+    the whole route is 0.27 GiB), unless constant frames are dropped (a place is dropped
+    where any of ``data.seasons`` shows one). Nordland's seasons are all read: its places
+    are the frames every season holds, the same whichever pairs a run names."""
+    if benchmark or data.source != "synthetic" or data.drop_constant_frames:
+        return data
+    named = {season for pair in pairs for season in pair}
+    return dataclasses.replace(data, seasons=tuple(s for s in data.seasons if s in named))
 
 
 def _with_effective_settings(cfg: SweepConfig, methods) -> SweepConfig:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 # Only light modules here (no JAX): bad input is answered before JAX, Flax and orbax load.
 from experiments.plan import make_plan
+from vpr_jax import compile_cache
 from vpr_jax.command_line import given_keys, parse_config
 from vpr_jax.config import SweepConfig
 from vpr_jax.errors import UserError
@@ -36,6 +37,8 @@ def run_sweep(cfg: SweepConfig, given: frozenset[str] = frozenset()) -> Path:
     plan = make_plan(cfg, log, given)
 
     from experiments.run import run_cells  # JAX, Flax, orbax: once the cheap checks pass
+
+    compile_cache.use(cfg.compile_cache, log)  # before the fits, encoders and matcher compile
 
     try:
         return run_cells(plan, log)

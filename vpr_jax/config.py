@@ -407,6 +407,8 @@ class SweepKnobs:
     # the data never change with them. None: one fit, of ``seed``.
     seeds: tuple[int, ...] | None = None
     logdir: str | None = None  # default runs/<preset> (preset=real: runs/real_<data.source>)
+    # XLA's compiled programs are kept here between runs (vpr_jax.compile_cache); None: off
+    compile_cache: str | None = "~/.cache/vpr_jax/xla"
     data: DataConfig = field(default_factory=DataConfig)
     split: SplitConfig = field(default_factory=SplitConfig)
     train: TrainConfig = field(default_factory=TrainConfig)

@@ -77,6 +77,7 @@ def identity(cfg: SweepConfig | dict) -> dict:
     skipped = (*EXTENDABLE_KEYS, *NAMES, "plugin", "precomputed")
     out = {k: v for k, v in out.items() if k not in skipped}
     out.get("data", {}).pop("cache_dir", None)  # where decoded videos are kept, not what
+    out.pop("compile_cache", None)  # where compiled programs are kept: the same programs
     for key in TRAIN_BOOKKEEPING:
         out.get("train", {}).pop(key, None)
     for group, keys in AXIS_KEYS.items():
