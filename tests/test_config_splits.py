@@ -200,3 +200,28 @@ def test_the_config_and_the_logdir_checks_load_without_jax():
     )
     proc = run_process([sys.executable, "-c", code], timeout=60)
     assert proc.returncode == 0, proc.stderr
+
+
+def _route_of(tmp_path, *args: str):
+    from experiments.plan import make_plan
+    from tests.conftest import TINY_ROUTE, LogLines
+
+    argv = [*TINY_ROUTE, "methods=[raw]", f"logdir={tmp_path / 'runs'}", *args]
+    return make_plan(parse_config(argv), LogLines()).route
+
+
+@pytest.mark.timeout(120)
+def test_the_built_in_route_renders_the_seasons_its_pairs_name(tmp_path):
+    """A season no pair names is not rendered (0.27 GiB a season on the whole route); the
+    ones rendered are the same pixels as when every season is; dropping constant frames
+    looks at every season of data.seasons, so all of them are rendered then."""
+    every = _route_of(tmp_path / "all")
+    named = _route_of(tmp_path / "one", "season_pairs=summer-fall")
+    assert every.seasons == ("spring", "summer", "fall")
+    assert named.seasons == ("summer", "fall")
+    for season in named.seasons:
+        np.testing.assert_array_equal(named.images[season], every.images[season])
+    dropping = _route_of(
+        tmp_path / "drop", "season_pairs=summer-fall", "data.drop_constant_frames=true"
+    )
+    assert dropping.seasons == every.seasons
