@@ -18,8 +18,6 @@ from pathlib import Path
 
 from vpr_jax.progress import Log
 
-DEFAULT = "~/.cache/vpr_jax/xla"
-
 
 def machine_tag() -> str:
     """The kind of CPU this process runs on: its architecture, model and instruction-set
