@@ -123,7 +123,7 @@ def check_orthonormal(state: PCAState, solver: str) -> None:
     such a fit is not PCA, and every method built on it would score nonsense without a
     word. A complement (``PCAState.complement``) is checked with them: the suffix
     descriptors' equality with each removed count's rests on the whole basis."""
-    rest = getattr(state, "complement", None)
+    rest = state.complement
     rows = state.components if rest is None else jnp.concatenate([state.components, rest])
     error = float(orthonormality_error(rows))
     if not error < ORTHONORMAL_TOLERANCE:  # NaN fails too

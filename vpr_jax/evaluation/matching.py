@@ -380,8 +380,8 @@ def top_k_matches(
     else:
         # Every device gets whole blocks: the database is padded to a multiple of all of them.
         db_rows = sharding.pad_rows(db_desc, n_devices * block_size)  # whole blocks each
-        blocks = (block_size, query_block_size)
-        scores, indices = _sharded_top_k(mesh, k, *blocks, starts, precision)(
+        program = _sharded_top_k(mesh, k, block_size, query_block_size, starts, precision)
+        scores, indices = program(
             sharding.put(query_desc, mesh, P()),
             sharding.put_rows(db_rows, mesh),
             jnp.int32(n_db),
