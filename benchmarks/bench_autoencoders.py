@@ -1,25 +1,25 @@
-"""Auto-encoder speed: encode ms per image against the seed's Table 5, and training s per epoch.
+"""Auto-encoder speed: encode ms per image against the paper's Table 5, and training s per epoch.
 
     python benchmarks/bench_autoencoders.py [--repeats 3] [--epoch-steps N] [--tiny]
 
 Models: FAE (2,048 -> 256 -> 2,048), the default CAE (``cae.model=fast``: 2x2 pixel blocks to
 channels, 3x3 convolutions of 24 and 48 channels, a 4x8x32 code), the quick preset's (the
-same at 16 and 32 channels) and the CALC-sized CAE the suite began with (``cae.model=calc``:
+same at 16 and 32 channels) and the CALC-sized CAE (``cae.model=calc``:
 channels 64, 128; kernels 5, 4; code channels 8), float32, initialised from
 jax.random.key(0) (speed does not depend on training). Encoder MFLOP per image are XLA's
 count of the jitted encoder.
 
-Encode: the database and the queries of the seed's test stretch (3,569 + 3,569 images of
+Encode: the database and the queries of the paper's test stretch (3,569 + 3,569 images of
 32x64), each season in one call, as the sweep does it (host numpy arrays in, device codes
 out). Warm median of --repeats runs (compilation excluded; the first call is reported
-separately). Peer: the seed's Table 5 on a GTX 1060, FAE 3.26 ms and CAE 17.5 ms per image;
-goal from the auto-encoder issue: ours <= 0.1x of it (FAE <= 0.326 ms, CAE <= 1.75 ms).
+separately). Peer: the paper's Table 5 on a GTX 1060, FAE 3.26 ms and CAE 17.5 ms per image;
+goal: ours <= 0.1x of it (FAE <= 0.326 ms, CAE <= 1.75 ms).
 
-Training: the seed's size, 4,500 images (2 x 2,500 training frames less each season's 10%
+Training: the paper's size, 4,500 images (2 x 2,500 training frames less each season's 10%
 validation tail, as the sweep splits them), batch 64 -> 70 steps per epoch, adam 1e-3, Table 2
 augmentation on; the jitted train_step over one shuffled epoch after one warm-up step (its
 compilation is reported separately). With --epoch-steps N < 70 only N steps are timed and the
-epoch is extrapolated. No peer: the seed reports training totals for the whole study only.
+epoch is extrapolated. No peer: the paper reports training totals for the whole study only.
 
 ``--tiny`` (for the tests): ``common.TINY_SIZES``'s whole images (100 + 100 to encode, 270 to
 train on), one warm run, 2 training steps of batch 16 per model.
@@ -34,12 +34,12 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import TINY_HELP, route_sizes, seed_route, timed
+from common import TINY_HELP, paper_route, route_sizes, timed
 
 from vpr_jax.config import TrainConfig
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
-from vpr_jax.encoders.train import make_optimizer, make_train_step
+from vpr_jax.encoders.train_programs import make_optimizer, make_train_step
 from vpr_jax.methods import cae
 
 TINY_EPOCH_STEPS, TINY_BATCH = 2, 16
@@ -59,14 +59,14 @@ def _cae(model: str, **changes) -> ae.CAESpec:
     )
 
 
-MODELS = (  # name, spec, seed's Table 5 ms per image on a GTX 1060 (its peer)
+MODELS = (  # name, spec, paper's Table 5 ms per image on a GTX 1060 (its peer)
     ("FAE hidden 256", ae.FAESpec(standardise=True), 3.26),
     ("CAE fast (24,48) s2d2", _cae("fast"), 17.5),
     ("CAE quick (16,32) s2d2", _cae("fast", channels=(16, 32)), 17.5),
     ("CAE calc (64,128) c8", _cae("calc"), 17.5),
 )
 GOAL = 0.1  # ours / seed at most
-SEED_TRAINING = "FAE 3 h 44 min, CAE 7 h 56 min"  # the seed's totals for the whole study
+PAPER_TRAINING = "FAE 3 h 44 min, CAE 7 h 56 min"  # the paper's totals for the whole study
 
 
 def encoder_params(params: dict) -> int:
@@ -172,10 +172,10 @@ def main() -> None:
         parser.error("--epoch-steps must be >= 1")
     start = time.perf_counter()
 
-    train, db, query = seed_route(**route_sizes(args.tiny, images=True))
+    train, db, query = paper_route(**route_sizes(args.tiny, images=True))
     shape = ae.IMAGE_SHAPE
     db, query = db.reshape(len(db), *shape), query.reshape(len(query), *shape)
-    # The seed's 4,500 training images: each season's stretch less its last tenth.
+    # The paper's 4,500 training images: each season's stretch less its last tenth.
     seasons = np.split(train.reshape(len(train), *shape), 2)
     train_images = np.concatenate([s[: round(0.9 * len(s))] for s in seasons])
     device = jax.devices()[0]
@@ -188,7 +188,7 @@ def main() -> None:
         f"Encode {len(db):,} database + {len(query):,} query images, one call per season; "
         f"warm median of {args.repeats}"
     )
-    print(f"(peer: the seed's Table 5 on a GTX 1060; goal: ours <= {GOAL}x of it)")
+    print(f"(peer: the paper's Table 5 on a GTX 1060; goal: ours <= {GOAL}x of it)")
     print(
         f"{'model':<24} {'params':>9} {'encoder':>9} {'code':>5} {'MFLOP':>7} {'first s':>8} "
         f"{'compile':>8} {'warm s':>8} {'ms/image':>9} {'GFLOP/s':>7} {'seed ms':>8} "
@@ -198,7 +198,7 @@ def main() -> None:
         bench_encode(spec, seed_ms, name, db, query, args.repeats)
     print(
         "  compile = first call (compilation + one run) - warm run; "
-        "every CAE is compared with the seed's CAE; MFLOP: encoder, per image"
+        "every CAE is compared with the paper's CAE; MFLOP: encoder, per image"
     )
 
     settings = TrainConfig(batch_size=TINY_BATCH) if args.tiny else TrainConfig()
@@ -216,8 +216,8 @@ def main() -> None:
     for name, spec, _ in MODELS:
         bench_train(spec, name, train_images, steps, settings)
     print(
-        f"  no peer: the seed gives training totals for its whole study only "
-        f"({SEED_TRAINING}, GTX 1060)"
+        f"  no peer: the paper gives training totals for its whole study only "
+        f"({PAPER_TRAINING}, GTX 1060)"
     )
     print(f"\ntotal {time.perf_counter() - start:.1f} s")
 

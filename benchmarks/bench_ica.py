@@ -7,7 +7,7 @@ route). Both sides fit from raw images (centring, whitening, iterations) with th
 contrast (logcosh), tol (1e-4) and max_iter (200), on the same float32 array; scikit-learn is
 FastICA(algorithm="parallel", whiten="unit-variance") with its default whiten_solver="svd",
 and with whiten_solver="eigh" as a second, faster peer. Ours: warm median (compilation
-excluded, reported separately). Goal from the ICA issue: ours >= 5x faster.
+excluded, reported separately). Goal: ours >= 5x faster.
 
 A known-source problem of the same size shows the separation quality: n independent sources
 (half Laplace, half uniform) mixed into 2,048 pixels by a random matrix, plus 1% noise;
@@ -25,7 +25,7 @@ import warnings
 
 import jax
 import numpy as np
-from common import TINY_HELP, TINY_ICA_COMPONENTS, route_sizes, seed_route, timed
+from common import TINY_HELP, TINY_ICA_COMPONENTS, paper_route, route_sizes, timed
 from peers import native_blas_process
 from sklearn.decomposition import FastICA
 
@@ -81,7 +81,7 @@ def main() -> None:
         args.components = str(TINY_ICA_COMPONENTS) if args.tiny else "64,256"
     sizes = [int(c) for c in args.components.split(",")]
 
-    train, _, _ = seed_route(**route_sizes(args.tiny))
+    train, _, _ = paper_route(**route_sizes(args.tiny))
     print(
         f"jax {jax.__version__} on {jax.devices()[0].platform}; images {train.shape} "
         f"{train.dtype}; fun={SETTINGS['fun']} tol={SETTINGS['tol']} "

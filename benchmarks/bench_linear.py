@@ -1,10 +1,10 @@
-"""Linear-method speed on the seed's sizes, every figure a ratio to a peer timed in this run.
+"""Linear-method speed on the paper's sizes, every figure a ratio to a peer timed in this run.
 
     python benchmarks/bench_linear.py [--repeats 3] [--tiny]
 
 Sizes: a 5,000 x 2,048 training matrix (2,500 frames of two seasons of the built-in route)
 and 3,569 queries x 3,569 database images. Times are medians of warm runs (compilation
-excluded; it is reported separately). Goals from the foundation issue:
+excluded; it is reported separately). Goals:
   PCA fit vs scikit-learn PCA(svd_solver="covariance_eigh")      <= 1.0x
   PCA fit of 100 components vs PCA(100, svd_solver="randomized") <= 1.0x
     and vs the full covariance_eigh                              <= 0.35x
@@ -24,7 +24,7 @@ import argparse
 
 import jax
 import numpy as np
-from common import TINY_HELP, route_sizes, seed_route, timed
+from common import TINY_HELP, paper_route, route_sizes, timed
 from common import ratio_row as row
 from peers import FORCING, ours_report, run_peer
 
@@ -53,7 +53,7 @@ def main() -> None:
         args.repeats = 1 if args.tiny else 3
     tiny = args.tiny
 
-    train, db, query = seed_route(**route_sizes(tiny))
+    train, db, query = paper_route(**route_sizes(tiny))
     print(
         f"jax {jax.__version__} on {jax.devices()[0].platform}; train {train.shape}, "
         f"queries {query.shape[0]} x database {db.shape[0]}\n"
@@ -124,7 +124,7 @@ def main() -> None:
     _, enc = timed(lambda: pca.suffix_descriptors(state, both), args.repeats)
     print(
         f"\n{'PCA encode (100 + residual)':<34} {1000 * enc / len(both):9.4f} ms per image "
-        f"(seed's Table 5 baseline: 0.1 ms)"
+        f"(paper's Table 5 baseline: 0.1 ms)"
     )
 
 

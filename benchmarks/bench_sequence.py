@@ -86,7 +86,7 @@ def main() -> None:
     sizes = route_sizes(args.tiny)
     n_test = sizes["n_test"]
     full_route = TINY_FULL_ROUTE if args.tiny else FULL_ROUTE
-    # the seed's test places: after its 2,500 training places and a gap of 100
+    # the paper's test places: after its 2,500 training places and a gap of 100
     first_test = sizes["n_train"] + sizes["gap"]
 
     n_route = full_route if not args.no_full_route else first_test + n_test

@@ -1,4 +1,4 @@
-"""Helpers shared by the benchmark scripts: warm timing, the seed's training matrix, rows."""
+"""Helpers shared by the benchmark scripts: warm timing, the paper's training matrix, rows."""
 
 from __future__ import annotations
 
@@ -68,7 +68,7 @@ def timed_alternately(fns, repeats: int) -> list[float]:
 # ``--tiny``, in every script: a run of seconds that exercises the whole script for the
 # tests (tests/test_benchmark_scripts.py), on data too small for its figures to mean anything.
 TINY_HELP = "a seconds-long run for the tests: sizes shrink, the figures mean nothing"
-SEED_SIZES = {"n_train": 2500, "gap": 100, "n_test": 3569, "pixel_step": 1}  # the seed's
+PAPER_SIZES = {"n_train": 2500, "gap": 100, "n_test": 3569, "pixel_step": 1}  # the paper's
 # 300 training images, 100 queries x 100 database, every 8th pixel (256 values: a
 # covariance's eigendecomposition takes milliseconds, not the seconds of 2,048 x 2,048).
 TINY_SIZES = {"n_train": 150, "gap": 10, "n_test": 100, "pixel_step": 8}
@@ -80,16 +80,16 @@ def ica_components(tiny: bool) -> int:
 
 
 def route_sizes(tiny: bool, images: bool = False) -> dict[str, int]:
-    """``seed_route``'s keyword arguments: the seed's sizes, or ``--tiny``'s; ``images``:
+    """``paper_route``'s keyword arguments: the paper's sizes, or ``--tiny``'s; ``images``:
     whole images (every pixel), for the auto-encoders."""
-    sizes = dict(TINY_SIZES if tiny else SEED_SIZES)
+    sizes = dict(TINY_SIZES if tiny else PAPER_SIZES)
     if images:
         sizes["pixel_step"] = 1
     return sizes
 
 
-def seed_route(n_train: int = 2500, gap: int = 100, n_test: int = 3569, pixel_step: int = 1):
-    """Summer and fall of the built-in route: the seed's training and test sizes by default
+def paper_route(n_train: int = 2500, gap: int = 100, n_test: int = 3569, pixel_step: int = 1):
+    """Summer and fall of the built-in route: the paper's training and test sizes by default
     (``route_sizes``); ``pixel_step``: every this-many-th value of each flattened image.
 
     Returns (train (2 n_train, 2048): both seasons' training places, database (n_test,

@@ -7,7 +7,7 @@ OpenBLAS kernel on numpy and scikit-learn (threadpoolctl then reports 'Haswell' 
 CPU is a SkylakeX): scikit-learn's FastICA took 33 s with them and 13 s without. ``run_peer``
 starts this script with both removed from the environment, so a peer runs as it would on a
 machine without them, while our side runs in the benchmark's own process as a user's would.
-Every task builds the same data as the benchmarks (``common.seed_route``) and reports the
+Every task builds the same data as the benchmarks (``common.paper_route``) and reports the
 median of warm runs, the first run, and the BLAS libraries threadpoolctl saw; with
 ``--tiny``, the benchmarks' tiny data (``common.route_sizes(tiny=True)``, FastICA of
 ``common.TINY_ICA_COMPONENTS`` components), as their own ``--tiny`` builds it. A benchmark's
@@ -111,10 +111,10 @@ def native_blas_process() -> None:
 
 
 def _tasks(tiny: bool):
-    from common import ica_components, route_sizes, seed_route
+    from common import ica_components, paper_route, route_sizes
     from sklearn.decomposition import PCA, FastICA
 
-    train, db, query = seed_route(**route_sizes(tiny))
+    train, db, query = paper_route(**route_sizes(tiny))
 
     def fastica():
         model = FastICA(

@@ -6,7 +6,7 @@ CAE with each objective, single images (ds = 1) and sequences of ten (ds = 10).
 DATA_ROOT holds one folder of frame-aligned images per season (``data.source=folders``:
 any size, the frame number in each file name), e.g. ``../shared/data/nordland_dev`` with
 ``summer/`` and ``winter/``. It runs the sweep (``python -m experiments.sweep``) with the
-seed's split scaled to 1,788 places by default (1,200 training places, a 10-frame gap, 450
+paper's split scaled to 1,788 places by default (1,200 training places, a 10-frame gap, 450
 test places, a match within +-1 frame; the last 120 training places validate, after another
 10-frame gap), the first season as the database and the second as
 the queries, into ``--logdir`` (default ``runs/real_data``; rerun to resume, or to add
@@ -36,7 +36,13 @@ sys.path.insert(0, str(REPO))
 from common import TINY_HELP  # noqa: E402
 
 from vpr_jax.method_table import NAMES  # noqa: E402
-from vpr_jax.outputs.results import has_setting, read_results, selected_rows  # noqa: E402
+from vpr_jax.outputs.results import (  # noqa: E402
+    SWEEP_KEYS,
+    choice_order,
+    read_results,
+    selected_rows,
+    settings_of,
+)
 
 ORDER = NAMES  # the method table's order; users' methods after it
 SPLIT = {"n_train": 1200, "n_test": 450, "gap": 10}  # the defaults of the options
@@ -85,6 +91,12 @@ def run_sweep(argv: list[str], in_process: bool = False) -> int:
     return subprocess.run(command, cwd=REPO, env=env).returncode
 
 
+def _sweep_values(row) -> str:
+    """The values of the sweep's keys the row's cell has (its removed count), or ''."""
+    values = settings_of(row)
+    return " ".join(str(values[key]) for key in SWEEP_KEYS if key in values)
+
+
 def table(rows) -> str:
     """One line per method and objective: the removed-PC count chosen on the validation
     places (``selected``), its test figures with the recall@1 interval, the selected row
@@ -104,12 +116,11 @@ def table(rows) -> str:
         if not single:
             continue
         sel = chosen[(method, objective, 1)]
-        best = max(single, key=lambda r: (r.recall_at_1, -r.removed_pcs))
+        best = min(single, key=lambda r: (-r.recall_at_1, choice_order(r)))
         seq = chosen.get((method, objective, 10))
-        axis = has_setting(sel, "removed_pcs")
-        k = str(sel.removed_pcs) if axis else ""
-        ds10 = f"{seq.recall_at_1:.3f}" + (f" (k={seq.removed_pcs})" if axis else "") if seq else ""
-        optimistic = f"{best.removed_pcs}: {best.recall_at_1:.3f}" if axis else ""
+        k = _sweep_values(sel)
+        ds10 = f"{seq.recall_at_1:.3f}" + (f" (k={_sweep_values(seq)})" if k else "") if seq else ""
+        optimistic = f"{_sweep_values(best)}: {best.recall_at_1:.3f}" if k else ""
         lines.append(
             f"| {method} | {objective} | {k} | {sel.recall_at_1:.3f} "
             f"[{sel.recall_at_1_ci_low:.3f}, {sel.recall_at_1_ci_high:.3f}] | "

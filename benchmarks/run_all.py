@@ -3,7 +3,7 @@
     python benchmarks/run_all.py [--repeats 3] [--skip-protocol] [--protocol-args "k=v ..."]
                                  [--json runs/run_all.json] [--tiny]
 
-Rows (seed's sizes: 5,000 x 2,048 training images, 3,569 queries x 3,569 database):
+Rows (paper's sizes: 5,000 x 2,048 training images, 3,569 queries x 3,569 database):
   PCA fit, every component   vs scikit-learn PCA(svd_solver="covariance_eigh")   <= 1.0x
   PCA fit, 100 components    vs scikit-learn PCA(100, svd_solver="randomized")   <= 1.0x
                              and vs the full covariance_eigh                     <= 0.35x
@@ -16,11 +16,11 @@ Rows (seed's sizes: 5,000 x 2,048 training images, 3,569 queries x 3,569 databas
                              at matching.precision=default vs float32            <= 1.1x
                              (the same on a CPU; TF32 products on a recent NVIDIA GPU)
   sequence matching, ds=10   vs the same search in numpy, a loop over queries    <= 1.0x
-  encode ms/image            vs the seed's Table 5 (GTX 1060): auto-encoders <= 0.1x (their
-                             issue's goal); PCA and ICA <= 1.0x: projecting onto all 2,048
-                             components is 8.4 MFLOP an image, and 0.1x of the seed's 0.1 ms
+  encode ms/image            vs the paper's Table 5 (GTX 1060): auto-encoders <= 0.1x;
+                             PCA and ICA <= 1.0x: projecting onto all 2,048
+                             components is 8.4 MFLOP an image, and 0.1x of the paper's 0.1 ms
                              would take 840 GFLOP/s, several times this CPU's peak
-  the paper protocol         vs 5 minutes on a 2-core CPU, and the seed's Table 4 total
+  the paper protocol         vs 5 minutes on a 2-core CPU, and the paper's Table 4 total
                              (14 h 50 min) for scale
   the whole route            peak RSS of ``preset=full`` (35,768 frames a season)  <= 2.5 GiB
   cost against route length  ``scaling.py``: exponents of matching's time (~ n^2) and
@@ -60,8 +60,8 @@ from common import (
     TINY_HELP,
     cpu_name,
     ica_components,
+    paper_route,
     route_sizes,
-    seed_route,
     sweep_in_fresh_process,
     timed,
     timed_alternately,
@@ -81,9 +81,9 @@ from vpr_jax.outputs.results import read_results
 from vpr_jax.precision import f32_matmul
 
 REPO = Path(__file__).resolve().parent.parent
-SEED_TABLE_4 = ("1:12:05", "1:57:32", "3:43:46", "7:56:09")  # baseline, ICA, FAE, CAE
-SEED_TABLE_4_S = sum(
-    int(h) * 3600 + int(m) * 60 + int(s) for h, m, s in (t.split(":") for t in SEED_TABLE_4)
+PAPER_TABLE_4 = ("1:12:05", "1:57:32", "3:43:46", "7:56:09")  # baseline, ICA, FAE, CAE
+PAPER_TABLE_4_S = sum(
+    int(h) * 3600 + int(m) * 60 + int(s) for h, m, s in (t.split(":") for t in PAPER_TABLE_4)
 )
 PROTOCOL_GOAL_S = 300.0
 FULL_ROUTE_GOAL_GIB = 2.5
@@ -238,10 +238,9 @@ def protocol_row(table: Table, extra: list[str], tiny: bool) -> None:
         wall, peak = sweep_in_fresh_process(args, logdir, fresh=not tiny)
         rows = read_results(logdir / "results.csv")
     from experiments.resolve import load
-    from vpr_jax.methods.contract import needs_of
 
     # needs of the default settings: whether a method trains does not depend on them
-    trained = {m for m, info in METHODS.items() if "training" in needs_of(load(info), None)}
+    trained = {m for m, info in METHODS.items() if "training" in load(info).needs(None)}
     by_method: dict[str, float] = {}
     for row in rows:  # the trained methods' fit is their training; the linear fits are small
         seconds = row.fit_seconds if row.method in trained else 0.0
@@ -249,7 +248,7 @@ def protocol_row(table: Table, extra: list[str], tiny: bool) -> None:
     label = "paper protocol" + (", tiny" if tiny else "")
     label += f" ({' '.join(extra)})" if extra else ""
     table.add(label, wall, PROTOCOL_GOAL_S, "goal: 5 min", 1.0)
-    table.add("  the same vs the seed's Table 4", wall, SEED_TABLE_4_S, "seed, 14 h 50 min", 1.0)
+    table.add("  the same vs the paper's Table 4", wall, PAPER_TABLE_4_S, "paper, 14 h 50 min", 1.0)
     print(
         f"  {len(rows)} cells, peak RSS {peak / 2**30:.2f} GiB; training seconds "
         f"{ {m: round(s, 1) for m, s in by_method.items() if m in trained} }"
@@ -326,10 +325,10 @@ def main() -> None:
     print(f"cpu: {about['cpu']}", flush=True)
 
     table = Table()
-    train, db, query = seed_route(**route_sizes(args.tiny))
+    train, db, query = paper_route(**route_sizes(args.tiny))
     linear_rows(table, train, db, query, args.repeats, args.tiny)
     if args.tiny:  # the linear rows' tiny data keep every 8th pixel: whole images here
-        _, db, query = seed_route(**route_sizes(args.tiny, images=True))
+        _, db, query = paper_route(**route_sizes(args.tiny, images=True))
     encoder_rows(table, db, query, args.repeats)
     if not args.skip_protocol:
         protocol_row(table, args.protocol_args.split(), args.tiny)

@@ -11,7 +11,6 @@ evaluates the matches and writes the cell.
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 from collections.abc import Callable
@@ -30,7 +29,14 @@ from vpr_jax.evaluation.metrics import Evaluation, evaluate_matches
 from vpr_jax.evaluation.sequence import sequence_top_k_cosine, velocities
 from vpr_jax.files import replace_folder
 from vpr_jax.methods.descriptors import Descriptors, Part
-from vpr_jax.outputs.results import ResultRow, append_results, sweep_columns, sweep_labels
+from vpr_jax.outputs.results import (
+    ResultRow,
+    append_results,
+    report_columns,
+    settings_columns,
+    settings_hparams,
+    sweep_labels,
+)
 from vpr_jax.outputs.tb import match_examples, write_cell_run
 from vpr_jax.progress import Log
 
@@ -132,16 +138,15 @@ def _write_run(
         scalars={
             "timing/fit_seconds": desc.fit_seconds,
             "timing/encode_ms_per_image": desc.encode_ms_per_image,
-            "fit/n_iter": desc.n_iter,
-            "fit/converged": int(desc.converged),
-            "fit/stopped_early": int(desc.stopped_early),
+            "fit/n_iter": desc.report.n_iter,
+            "fit/converged": int(desc.report.converged),
+            "fit/stopped_early": int(desc.report.stopped_early),
         },
         hparams={
             "season_pair": pair.name,
             "method": desc.method,
             "objective": desc.objective,
-            "setting": desc.parts[cell].setting,
-            **{k: float(v) for k, v in sweep_columns(desc.parts[cell].settings).items()},
+            **settings_hparams(desc.parts[cell].settings),
             "ds": float(ds),
             "seed": float(desc.seed),
         },
@@ -151,7 +156,7 @@ def _write_run(
             pair.query, pair.db, pair.truth, top[1][:, 0], cfg.tb.n_match_examples
         ),
         basis_images=desc.basis[cell],
-        basis_tag=f"basis/{desc.basis_name}",
+        basis_tag=f"basis/{desc.report.basis_name}",
     )
     np.savez(
         staging / "curve.npz",
@@ -216,17 +221,12 @@ def _what_was_measured(pair: PairData, desc: Descriptors) -> dict:
 
 
 def _how_it_was_fitted(desc: Descriptors) -> dict:
-    """results.csv's columns of the fit behind ``desc``: its time, iterations, the epoch it
-    kept of those it trained, its start and seed."""
+    """results.csv's columns of the fit behind ``desc``: its time, what it reported, its
+    seed."""
     return {
         "fit_seconds": desc.fit_seconds,
         "encode_ms_per_image": desc.encode_ms_per_image,
-        "n_iter": desc.n_iter,
-        "converged": int(desc.converged),
-        "stopped_early": int(desc.stopped_early),
-        "kept_epoch": desc.kept_epoch,
-        "epochs_trained": desc.epochs_trained,
-        "start": desc.start,
+        **report_columns(desc.report),
         "seed": desc.seed,
     }
 
@@ -268,9 +268,7 @@ def save_cell(
         **_what_was_measured(pair, desc),
         method=desc.method,
         objective=desc.objective,
-        setting=part.setting,
-        settings=json.dumps(part.settings),
-        **sweep_columns(part.settings),
+        **settings_columns(part.settings),
         ds=ds,
         **ev.scalars(),
         recall_at_1_ci_low=ci.recall_at_1.low,

@@ -151,7 +151,7 @@ def export_cell(
         method=row.method,
         objective=row.objective,
         seed=row.seed,
-        parts=(Part(settings=settings_of(row), setting=row.setting, run=name),),
+        parts=(Part(settings=settings_of(row), run=name),),
         starts=(0,),
         db=db,
         query=query,

@@ -24,12 +24,12 @@ from jax.sharding import Mesh
 
 from experiments.plan import Plan
 from experiments.resolve import Fit, Served
-from experiments.resolve import needs as resolve_needs
 from experiments.saving import save_state
 from vpr_jax.data.pair import PairData, with_train_places
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.host_arrays import release_free_memory
 from vpr_jax.method_table import MethodInfo
+from vpr_jax.methods import pca
 from vpr_jax.methods.contract import (
     SERVED,
     SUFFIX,
@@ -38,8 +38,6 @@ from vpr_jax.methods.contract import (
     Report,
     Training,
     Validation,
-    axes_of,
-    report_of,
 )
 from vpr_jax.methods.descriptors import (
     Descriptors,
@@ -67,25 +65,24 @@ class PairRun(NamedTuple):
     out: Path  # where this process writes TensorBoard runs
     log: Log
     mesh: Mesh | None
-    shared: dict  # the pair's shared PCA fits, once made, by settings and training places;
+    made: dict  # the pair's shared PCA fits, once made, by settings and training places;
     # and the pair thinned to each ``split.train_places`` value, once made
 
 
 def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
-    """The pair's shared PCA fit: the offering method's own cells get it with their
-    settings, every other method with the offering method's first; made on first use and
-    kept per settings, whichever methods use it, so each user gets what it would get
-    alone."""
-    declared, provider = run.plan.shared["pca_fit"]
+    """The pair's shared PCA fit: pca's own cells get it with their settings, every other
+    method with pca's first; made on first use and kept per settings, whichever methods use
+    it, so each user gets what it would get alone."""
+    provider = run.plan.pca
     own = fit.method.info == provider.info
     settings = fit.settings if own else provider.combinations[0].settings
     key = (fit_key(provider.method, settings), fit.train_places)
-    if key not in run.shared:
+    if key not in run.made:
         train = fitted_on(fit, run).train
         n_images, n_pixels = len(train), int(np.prod(train.shape[1:]))
-        asked = declared.components(settings, n_images, n_pixels)
+        asked = pca.shared_components(settings, n_images, n_pixels)
         state, seconds = timed(
-            lambda x: declared.fit(x, asked, settings, run.mesh, run.plan.cfg.seed), train
+            lambda x: pca.shared_fit(x, asked, settings, run.mesh, run.plan.cfg.seed), train
         )
         held = len(state.components)
         if held < asked:
@@ -95,8 +92,8 @@ def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
                 "constant frames); counts beyond it are left out "
                 "(docs/methods.md#pca-on-any-training-set)"
             )
-        run.shared[key] = PCAFit(state=state, seconds=seconds, asked=asked)
-    return run.shared[key]
+        run.made[key] = PCAFit(state=state, seconds=seconds)
+    return run.made[key]
 
 
 def fitted_on(fit: Fit, run: PairRun) -> PairData:
@@ -104,21 +101,21 @@ def fitted_on(fit: Fit, run: PairRun) -> PairData:
     (the validation and test places as they are), made once per value (None: the pair
     itself)."""
     key = ("train_places", fit.train_places)
-    if key not in run.shared:
-        run.shared[key] = with_train_places(run.data, fit.train_places)
-    return run.shared[key]
+    if key not in run.made:
+        run.made[key] = with_train_places(run.data, fit.train_places)
+    return run.made[key]
 
 
 def fit_key(method, settings: Any) -> str:
     """What decides a method's fit among its settings: all but those one fit serves."""
-    served = {n for n, kind in axes_of(method, settings).items() if kind in (SERVED, SUFFIX)}
+    served = {n for n, kind in method.axes(settings).items() if kind in (SERVED, SUFFIX)}
     values = as_dict(settings)
     return repr(sorted((n, v) for n, v in values.items() if n not in served))
 
 
 def resources(fit: Fit, run: PairRun) -> dict[str, Any]:
     """What the fit's method needs from the runner, by keyword."""
-    needs, data = resolve_needs(fit), run.data
+    needs, data = fit.method.method.needs(fit.settings), run.data
     out: dict[str, Any] = {}
     if "pca_fit" in needs:
         out["pca_fit"] = _pca_fit(fit, run)
@@ -240,7 +237,7 @@ def _scored_parts(fit: Fit, parts, state, run: PairRun) -> tuple[tuple, list[Rep
     kept, reports = [], []
     for part in parts:
         try:
-            reports.append(report_of(fit.method.method, state, {**fit.values, **part.values}))
+            reports.append(fit.method.method.reported(state, {**fit.values, **part.values}))
         except NotScored as err:
             _left_out(fit, (part,), err, run)
             continue
@@ -261,7 +258,7 @@ def describe_fit(fit: Fit, parts: tuple[Served, ...], run: PairRun) -> Iterator[
     parts, reports = _scored_parts(fit, parts, state, run)
     if not parts:
         return
-    kinds = axes_of(fit.method.method, fit.settings)
+    kinds = fit.method.method.axes(fit.settings)
     suffix = next((n for n, kind in kinds.items() if kind == SUFFIX), "")
     if suffix:
         starts = tuple(int(p.values[suffix]) for p in parts)
@@ -296,7 +293,7 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
         method=fit.method.name,
         objective=fit.objective,
         seed=fit.seed,
-        parts=tuple(Part(settings=p.settings, setting=p.setting, run=p.run) for p in parts),
+        parts=tuple(Part(settings=p.settings, run=p.run) for p in parts),
         starts=starts,
         db=db,
         query=query,
@@ -304,12 +301,7 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
         val_query=val_query,
         fit_seconds=(own if first.fit_seconds is None else first.fit_seconds) + shared,
         encode_ms_per_image=ms,
-        n_iter=first.n_iter,
-        converged=first.converged,
-        stopped_early=first.stopped_early,
-        kept_epoch=first.kept_epoch,
-        epochs_trained=first.epochs_trained,
-        start=first.start,
+        report=first,
         n_train=n_train,
         basis=tuple(
             None
@@ -317,6 +309,5 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
             else as_images(np.asarray(r.basis)[: cfg.tb.n_basis_images], shape)
             for r in reports
         ),
-        basis_name=first.basis_name,
         warning=warning,
     )

@@ -19,19 +19,16 @@ from vpr_jax.config import (
     BENCHMARK_PAIRS,
     BENCHMARK_SOURCES,
     DataConfig,
-    MeshConfig,
     SequenceConfig,
     SweepConfig,
-    plain,
 )
 from vpr_jax.data import SEASON_ORDER, Benchmark, Route, load_data, load_train_route
 from vpr_jax.data.precomputed import OutsideSide, read_precomputed
 from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
-from vpr_jax.errors import UserError, first_line
+from vpr_jax.errors import UserError
 from vpr_jax.method_table import NAMES as METHOD_NAMES
-from vpr_jax.methods.contract import SharedFit, TrainingSet
-from vpr_jax.methods.settings import effective
+from vpr_jax.methods.contract import TrainingSet
 from vpr_jax.outputs.logdir import check_same_config, identity, prepare_logdir
 from vpr_jax.progress import Log
 
@@ -49,10 +46,10 @@ class Plan(NamedTuple):
     fits: tuple[resolve.Fit, ...] = ()  # every method's fits in each pair, in order
     outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed set -> side -> descriptors
     training_sets: dict[str, TrainingSet] = {}  # method -> what its checks saw
-    shared: dict[str, tuple[SharedFit, resolve.Resolved]] = {}  # resource -> the fit a
-    # pair shares and the method that offers it (resolve.shared_fits)
+    pca: resolve.Resolved | None = None  # pca's settings: they shape the pair's shared
+    # PCA fit (resolve.pca_settings)
     identity: dict = {}  # the config's part that decides every cell (outputs.logdir)
-    mesh: Any = None  # the devices, a jax Mesh (start_devices); None: one device
+    mesh: Any = None  # the devices, a jax Mesh (sharding.start_devices); None: one device
 
     def describe(self) -> str:
         """What the sweep runs on, for the run log's first line."""
@@ -136,17 +133,10 @@ def read_outside_sets(
     return out
 
 
-def make_plan(
-    cfg: SweepConfig,
-    log: Log,
-    given: frozenset[str] = frozenset(),
-    asked: frozenset[str] | None = None,
-) -> Plan:
+def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -> Plan:
     """Check pairs, logdir and the methods' settings, load (and screen, and preprocess) the
     route or benchmark, split the route, and fit the methods' settings and the removed-PC
-    counts to the training set (``given``: the keys set on the command line; ``asked``:
-    those and the preset's, see ``config.asked_keys``)."""
-    asked = given if asked is None else asked
+    counts to the training set (``given``: the keys set on the command line)."""
     logdir = Path(cfg.logdir).expanduser().resolve()
     benchmark = cfg.data.source in BENCHMARK_SOURCES
     if benchmark:
@@ -161,25 +151,26 @@ def make_plan(
         )
     aligned = cfg.data.aligned_training
     _note_unused_settings(cfg, given, log)
-    methods = resolve.resolve_methods(cfg, aligned, cfg.data.source, asked)
+    methods = resolve.resolve_methods(cfg, aligned, cfg.data.source, given)
     _check_baseline(cfg, methods, given)
-    shared = resolve.shared_fits(cfg)
+    pca = resolve.pca_settings(cfg)
+    from vpr_jax.methods.pca import shared_components  # JAX: loaded with the methods
+    from vpr_jax.sharding import mesh_size, start_devices
+
     data = _load(cfg, benchmark, pairs, log)
     _check_train_places(cfg, data)
     mesh = start_devices(cfg.mesh, log)
     n_images, n_pixels = data.n_train, data.n_pixels
-    held = shared_components(shared, n_images, n_pixels)
+    held = shared_components(pca.combinations[0].settings, n_images, n_pixels)
     sets = {
-        r.name: resolve.training_set(
-            r, n_images, n_pixels, aligned, given, asked, held, mesh_size(mesh)
-        )
+        r.name: resolve.training_set(r, n_images, n_pixels, aligned, given, held, mesh_size(mesh))
         for r in methods
     }
     methods = resolve.check_training_set(methods, sets, log)
-    cfg = _with_effective_settings(cfg, methods)
-    check_same_config(logdir, cfg, lambda saved: resolve.settings_identities(saved))
+    recorded = _with_effective_settings(cfg, methods)
+    check_same_config(logdir, recorded, lambda saved: resolve.settings_identities(saved))
     return Plan(
-        cfg=cfg,
+        cfg=recorded,
         logdir=logdir,
         pairs=pairs,
         route=data.route,
@@ -189,7 +180,7 @@ def make_plan(
         fits=tuple(f for r in methods for f in resolve.fits(r, cfg)),
         outside=read_outside_sets(cfg, data.benchmark, log) if data.benchmark is not None else {},
         training_sets=sets,
-        shared=shared,
+        pca=pca,
         identity=identity(cfg),
         mesh=mesh,
     )
@@ -206,13 +197,6 @@ def _check_train_places(cfg: SweepConfig, data) -> None:
         )
 
 
-def shared_components(shared: dict, n_images: int, n_pixels: int) -> int:
-    """The components the pair's shared PCA fit holds for the methods that need it (with
-    the offering method's first settings)."""
-    declared, provider = shared["pca_fit"]
-    return declared.components(provider.combinations[0].settings, n_images, n_pixels)
-
-
 def _check_baseline(cfg: SweepConfig, methods, given: frozenset[str]) -> None:
     """A baseline named on the command line must be in the sweep."""
     names = {r.name for r in methods} | set(cfg.precomputed)
@@ -221,43 +205,6 @@ def _check_baseline(cfg: SweepConfig, methods, given: frozenset[str]) -> None:
             f"baseline={cfg.baseline} is not in this sweep: choose one of "
             f"{', '.join(sorted(names))} (results.md's paired differences are to it)"
         )
-
-
-def mesh_size(mesh) -> int:
-    """Devices of a mesh (None: one)."""
-    return 1 if mesh is None else int(mesh.devices.size)
-
-
-def start_devices(cfg: MeshConfig, log: Log):
-    """Join the other processes (``mesh.distributed``), then build the device mesh: before
-    the methods' checks, which ask how many devices a batch splits over."""
-    import jax
-
-    from vpr_jax.sharding import make_mesh
-
-    if cfg.distributed:
-        # CPU devices of several processes talk through gloo; GPUs use NCCL regardless.
-        jax.config.update("jax_cpu_collectives_implementation", "gloo")
-        try:
-            jax.distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
-        except (RuntimeError, ValueError) as err:
-            raise UserError(
-                f"mesh.distributed=true could not join the other processes ({first_line(err)}): "
-                "start one process per host under a launcher JAX detects (SLURM, Open MPI), or "
-                "set mesh.coordinator=HOST:PORT, mesh.num_processes and mesh.process_id"
-            ) from None
-    try:
-        mesh = make_mesh(cfg.devices)
-    except ValueError as err:
-        raise UserError(str(err)) from None
-    if mesh is not None:
-        devices = mesh.devices.flat
-        log(
-            f"mesh: {mesh_size(mesh)} {devices[0].platform} devices in "
-            f"{jax.process_count()} process(es); PCA samples, matching database and "
-            "training batches are split over them"
-        )
-    return mesh
 
 
 def _note_unused_settings(cfg: SweepConfig, given: frozenset[str], log: Log) -> None:
@@ -344,12 +291,10 @@ def _with_effective_settings(cfg: SweepConfig, methods) -> SweepConfig:
     fitted to the training set, axes as lists): what config.yaml records."""
     builtin, plugins = {}, dict(cfg.plugin)
     for r in methods:
-        given = resolve.given_settings(cfg, r.info, r.method)
-        settings = plain(effective(r.method.settings, list(r.combinations), given))
         if r.info.precomputed:
             continue  # cfg.precomputed holds a set's files as given
         if r.info.plugin:
-            plugins[r.name] = settings
+            plugins[r.name] = r.effective
         else:
-            builtin[r.name] = settings
+            builtin[r.name] = r.effective
     return dataclasses.replace(cfg, plugin=plugins, **builtin)

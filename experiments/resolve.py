@@ -19,12 +19,12 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, NamedTuple
 
-from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig, TrainConfig
+from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig, TrainConfig, plain
 from vpr_jax.errors import UserError
 from vpr_jax.method_table import (
     ALIGNED_FIX,
     METHODS,
-    OFFERS,
+    SHARED_PCA,
     MethodInfo,
     info_of,
     load_object,
@@ -32,18 +32,7 @@ from vpr_jax.method_table import (
     outside_info,
 )
 from vpr_jax.methods import settings as axes
-from vpr_jax.methods.contract import (
-    ROWS,
-    SERVED,
-    SUFFIX,
-    Method,
-    SharedFit,
-    TrainingSet,
-    as_method,
-    axes_of,
-    needs_alignment,
-    needs_of,
-)
+from vpr_jax.methods.contract import ROWS, SERVED, SUFFIX, Method, TrainingSet, as_method
 from vpr_jax.methods.settings import Combination
 from vpr_jax.outputs.results import SWEEP_KEYS, cell_name
 from vpr_jax.progress import Log
@@ -59,11 +48,18 @@ class Resolved(NamedTuple):
     info: MethodInfo
     method: Method
     group: str  # where its settings are given: "ica", "plugin.edges"
+    given: dict  # its settings as the command line and the preset gave them
     combinations: tuple[Combination, ...]  # its settings, one per point of its axes
 
     @property
     def name(self) -> str:
         return self.info.name
+
+    @property
+    def effective(self) -> dict:
+        """Its settings as it runs them (defaults filled in, checked, fitted to the training
+        set, each axis as the list of its values): what config.yaml records."""
+        return plain(axes.effective(self.method.settings, list(self.combinations), self.given))
 
 
 class Served(NamedTuple):
@@ -71,7 +67,6 @@ class Served(NamedTuple):
 
     values: dict[str, Any]  # encode's keyword settings (the served ones)
     settings: dict[str, Any]  # the cell's swept settings (what tells it from its neighbours)
-    setting: str  # their label, less the sweep's keys (results.csv's setting)
     run: str  # its run's name less the pair and ds: ica_n_components=64_k005, fae_seed1
 
 
@@ -96,21 +91,17 @@ def group_of(info: MethodInfo) -> str:
     return f"plugin.{info.name}" if info.plugin else info.name
 
 
-def _fields(method: Method) -> set[str]:
-    """The settings a method has: its dataclass's fields, or (without one) the settings
-    its ``axes`` name."""
-    if method.settings is not None:
-        return {f.name for f in dataclasses.fields(method.settings)}
-    return set(method.axes) if isinstance(method.axes, dict) else set()
-
-
-def given_settings(cfg: SweepConfig, info: MethodInfo, method: Method | None = None) -> dict:
+def given_settings(cfg: SweepConfig, info: MethodInfo, method: Method) -> dict:
     """A method's settings as the command line and the preset gave them, with the sweep's
-    keys and the training defaults it has a setting of."""
+    keys and the training defaults it has a setting of (its dataclass's fields; without
+    one, the settings its ``axes`` name)."""
     if info.precomputed:
         return dict(cfg.precomputed[info.name])
     given = dict(cfg.plugin.get(info.name, {}) if info.plugin else getattr(cfg, info.name))
-    fields = _fields(method) if method is not None else set()
+    if method.settings is not None:
+        fields = {f.name for f in dataclasses.fields(method.settings)}
+    else:
+        fields = set(method.axes(given))
     for key in SWEEP_KEYS:
         if key in fields and key not in given:
             given[key] = list(getattr(cfg, key))
@@ -141,41 +132,32 @@ def resolve(info: MethodInfo, cfg: SweepConfig) -> Resolved:
     group = group_of(info)
     given = given_settings(cfg, info, method)
     combinations = tuple(axes.expand(method.settings, given, group))
-    return Resolved(info=info, method=method, group=group, combinations=combinations)
+    return Resolved(info=info, method=method, group=group, given=given, combinations=combinations)
 
 
-def shared_fits(cfg: SweepConfig) -> dict[str, tuple[SharedFit, Resolved]]:
-    """Each fit a pair shares (``method_table.OFFERS``): its declaration and the method
-    that offers it with its settings, whether or not that method is in ``methods``. A
-    method that needs it gets it with the offering method's first combination of settings;
-    the offering method's own cells, with each of theirs."""
-    out = {}
-    for resource, (name, declared) in OFFERS.items():
-        out[resource] = (load_object_of(declared), resolve(METHODS[name], cfg))
-    return out
-
-
-def load_object_of(ref: str) -> Any:
-    """``module:object`` of the suite (a table's line), imported."""
-    return load_object(MethodInfo(name=ref, method=ref))
+def pca_settings(cfg: SweepConfig) -> Resolved:
+    """pca with its settings, whether or not it is in ``methods``: they shape the pair's
+    shared PCA fit (resource ``pca_fit``). A method that needs the fit gets it with pca's
+    first combination of settings; pca's own cells, with each of theirs."""
+    return resolve(METHODS[SHARED_PCA], cfg)
 
 
 def resolve_methods(
-    cfg: SweepConfig, aligned: bool, source: str, asked: frozenset[str]
+    cfg: SweepConfig, aligned: bool, source: str, given: frozenset[str]
 ) -> tuple[Resolved, ...]:
     """Every entry of ``methods`` loaded and its settings checked. A method that learns from
-    aligned training places is refused on data without them when asked for by name (and
-    always when it is the user's), and left out otherwise."""
+    aligned training places is refused on data without them when ``methods`` is named on
+    the command line (and always when it is the user's), and left out otherwise."""
     resolved, left_out = [], []
     infos = [info_of(entry) for entry in cfg.methods]
     infos += [outside_info(name) for name in cfg.precomputed]  # after the methods, by name
     for info in infos:
         one = resolve(info, cfg)
-        if needs_alignment(one.method, one.combinations[0].settings) and not aligned:
+        if one.method.needs_alignment(one.combinations[0].settings) and not aligned:
             left_out.append(one)
             continue
         resolved.append(one)
-    refused = [r.name for r in left_out if r.info.plugin or "methods" in asked]
+    refused = [r.name for r in left_out if r.info.plugin or "methods" in given]
     if refused:
         raise UserError(
             f"methods {refused} learn from aligned training places (needs 'aligned'), which "
@@ -209,7 +191,7 @@ def _check_run_names(resolved: list[Resolved]) -> None:
 
 def _rows_setting(method: Method, settings: Any) -> str:
     """The setting whose values are rows of their own ('' for none)."""
-    rows = [n for n, kind in axes_of(method, settings).items() if kind == ROWS]
+    rows = [n for n, kind in method.axes(settings).items() if kind == ROWS]
     return rows[0] if rows else ""
 
 
@@ -228,7 +210,6 @@ def training_set(
     n_pixels: int,
     aligned: bool,
     given: frozenset[str],
-    asked: frozenset[str],
     pca_components: int,
     devices: int,
 ) -> TrainingSet:
@@ -243,7 +224,6 @@ def training_set(
         aligned=aligned,
         swept={name: tuple(values) for name, values in swept.items()},
         given=_given_in(given, r.group),
-        asked=_given_in(asked, r.group),
         pca_components=pca_components,
         devices=devices,
     )
@@ -282,7 +262,7 @@ def check_training_set(
 
 
 def _served_names(method: Method, settings: Any) -> set[str]:
-    return {n for n, kind in axes_of(method, settings).items() if kind in (SERVED, SUFFIX)}
+    return {n for n, kind in method.axes(settings).items() if kind in (SERVED, SUFFIX)}
 
 
 def fits(r: Resolved, cfg: SweepConfig) -> list[Fit]:
@@ -317,7 +297,6 @@ def _fit(r: Resolved, group: list[Combination], objective: str, seed, data_seed,
         Served(
             values={n: c.values[n] for n in served_names if n in c.values},
             settings=dict(c.swept),
-            setting=axes.label(tuple((n, v) for n, v in c.swept if n not in SWEEP_KEYS)),
             run=cell_name(r.name, objective, c.swept, seed_named),
         )
         for c in group
@@ -333,11 +312,6 @@ def _fit(r: Resolved, group: list[Combination], objective: str, seed, data_seed,
         served=served,
         train_places=places,
     )
-
-
-def needs(fit: Fit) -> tuple[str, ...]:
-    """What the fit's method needs, for the fit's settings."""
-    return needs_of(fit.method.method, fit.settings)
 
 
 def settings_identities(config: dict) -> dict[str, dict]:
@@ -356,6 +330,16 @@ def settings_identities(config: dict) -> dict[str, dict]:
         except UserError:  # a user's method that no longer imports: its settings as given
             method = None
         schema = method.settings if method else None
-        rows = _rows_setting(method, None) if method and not callable(method.axes) else ""
-        out[group_of(info)] = axes.identity(schema, given, rows)
+        out[group_of(info)] = axes.identity(schema, given, _rows_of_defaults(method))
     return out
+
+
+def _rows_of_defaults(method: Method | None) -> str:
+    """The setting whose values are rows of their own, at the method's default settings
+    ('' where it has none, or no defaults to ask with)."""
+    if method is None:
+        return ""
+    try:
+        return _rows_setting(method, method.settings() if method.settings else {})
+    except (TypeError, AttributeError, KeyError):  # a user's settings without defaults
+        return ""

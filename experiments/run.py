@@ -38,7 +38,7 @@ from vpr_jax.outputs.results import (
     ResultRow,
     cell_key,
     read_results,
-    sweep_columns,
+    settings_hparams,
 )
 from vpr_jax.outputs.tb import write_experiment_config
 from vpr_jax.progress import Bar, Log, RunLog
@@ -76,7 +76,6 @@ class Cell(NamedTuple):
     season_pair: str
     method: str
     objective: str
-    setting: str
     settings: dict  # every swept setting, by name
     ds: int
     seed: int
@@ -102,7 +101,6 @@ def cell_of(pair: str, fit: Fit, part: Served, ds: int) -> Cell:
         season_pair=pair,
         method=fit.method.name,
         objective=fit.objective,
-        setting=part.setting,
         settings=part.settings,
         ds=ds,
         seed=fit.seed,
@@ -132,14 +130,14 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
         + f", logdir {logdir}"
     )
     cells, todo = _cells_to_do(plan, log)
+    hparams = [settings_hparams(c.settings) for c in cells]
     write_experiment_config(
         out,
         {
             "season_pair": [f"{a}-{b}" for a, b in plan.pairs],
             "method": [c.method for c in cells],
             "objective": [c.objective for c in cells],
-            "setting": [c.setting for c in cells],
-            **{key: [float(sweep_columns(c.settings)[key]) for c in cells] for key in SWEEP_KEYS},
+            **{name: [h[name] for h in hparams] for name in ("setting", *SWEEP_KEYS)},
             "ds": [float(c.ds) for c in cells],
             "seed": [float(c.seed) for c in cells],
         },
@@ -195,7 +193,7 @@ def _run_pair(
                 out=out,
                 log=log,
                 mesh=mesh,
-                shared={},
+                made={},
             )
         return run
 

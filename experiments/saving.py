@@ -39,21 +39,13 @@ def save_state(fit: Fit, state: Any, cfg: SweepConfig, pair: str, fitted_dir: Pa
     if jax.process_index() != 0:
         return
     info = fit.method.info
-    serves: dict[str, list] = {}
-    for served in fit.served:
-        for name, value in served.values.items():
-            serves.setdefault(name, []).append(value)
     description = {
         "method": info.method,
         "name": info.name,
         "objective": fit.objective,
         "pair": pair,
         "settings": dict(fit.values),
-        "serves": serves,
-        "cells": [
-            {"run": p.run, "setting": p.setting, "settings": p.settings, "served": p.values}
-            for p in fit.served
-        ],
+        "cells": [{"run": p.run, "settings": p.settings, "served": p.values} for p in fit.served],
         "seed": fit.seed,
         "preprocessing": describe_preprocessing(
             cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded

@@ -179,6 +179,22 @@ def run_here(*args: str, path: Iterable[str | Path] = ()) -> subprocess.Complete
     )
 
 
+def sweep_rows(
+    *args: str, run: Callable = run_here, **kwargs
+) -> tuple[list, subprocess.CompletedProcess]:
+    """A sweep that must succeed: ``run(*args, **kwargs)`` (``run_here``, or ``run_cli`` for
+    a fresh interpreter), asserted to exit 0 (the end of its stderr in the message).
+    Returns ``(rows, proc)``: the rows of ``results.csv`` in the logdir ``args`` name
+    (``read_results``) and the finished process, for what the test reads of its output."""
+    from vpr_jax.outputs.results import read_results
+
+    logdirs = [a.split("=", 1)[1] for a in args if a.startswith("logdir=")]
+    assert logdirs, f"sweep_rows: no logdir= among {args}"
+    proc = run(*args, **kwargs)
+    assert proc.returncode == 0, f"exit {proc.returncode}, stderr: ...{_tail(proc.stderr)}"
+    return read_results(Path(logdirs[-1]) / "results.csv"), proc
+
+
 def _forget_modules(folders: list[str]) -> None:
     """Drop from ``sys.modules`` every module imported from ``folders`` and every module
     named like one of theirs (``name.py`` or a package ``name/``)."""

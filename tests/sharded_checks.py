@@ -27,13 +27,8 @@ from vpr_jax.config import TrainConfig
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import pca
-from vpr_jax.encoders.train import (
-    TrainingData,
-    TrainOptions,
-    fit_autoencoder,
-    make_optimizer,
-    make_train_step,
-)
+from vpr_jax.encoders.train import TrainingData, TrainOptions, fit_autoencoder
+from vpr_jax.encoders.train_programs import make_optimizer, make_train_step
 from vpr_jax.evaluation import matching
 from vpr_jax.evaluation.matching import top_k_matches
 

@@ -155,7 +155,7 @@ def test_default_config_is_shift_then_optional_mirror():
 def test_the_place_keeping_augmentation_never_flips_and_shifts_a_few_pixels():
     """train.augment=place: every output is an unflipped nearest-edge shift of at most
     3 pixels across and 1 down (0.05 of 64 and of 32), and both bounds are reached."""
-    from vpr_jax.encoders.train import augment_config
+    from vpr_jax.encoders.train_programs import augment_config
 
     assert augment_config("place") is PLACE and augment_config(True) == AugmentConfig()
     assert augment_config(False) is None

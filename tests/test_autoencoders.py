@@ -47,7 +47,7 @@ def test_default_sizes_follow_the_seed_and_calc():
     assert ae.make_encode(graphdef)(params, _images(1)).shape == (1, 1024)  # about 1k values
 
 
-@pytest.mark.parametrize("centre", [0.5, 0.0])  # ours; the seed's plain layer
+@pytest.mark.parametrize("centre", [0.5, 0.0])  # ours; the paper's plain layer
 def test_fae_code_is_relu_of_the_first_layer_on_centred_pixels(centre):
     graphdef, params = ae.build(ae.FAESpec(hidden=16, centre=centre), jax.random.key(1))
     x = _images(3)

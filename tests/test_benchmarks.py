@@ -13,10 +13,9 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import REPO, assert_one_line_error, run_cli, run_here
+from tests.conftest import REPO, assert_one_line_error, run_cli, run_here, sweep_rows
 from tests.inputs import N_PLACES, read_grey, u8, write_release, write_vpr_bench
 from vpr_jax.data.synthetic import synthetic_route
-from vpr_jax.outputs.results import read_results
 
 RAW = ["methods=[raw]"]
 
@@ -43,11 +42,13 @@ def reference_recall(db_paths, query_paths, correct_sets) -> float:
 def test_vpr_bench_raw_recall_equals_a_numpy_reference(route, tmp_path):
     root = tmp_path / "bench"
     refs, queries, rows = write_vpr_bench(root, route, drop_rows={7})
-    proc = run_cli(
-        "data.source=vpr_bench", f"data.root={root}", *RAW, f"logdir={tmp_path / 'runs'}"
+    (row,), proc = sweep_rows(
+        "data.source=vpr_bench",
+        f"data.root={root}",
+        *RAW,
+        f"logdir={tmp_path / 'runs'}",
+        run=run_cli,
     )
-    assert proc.returncode == 0, proc.stderr
-    (row,) = read_results(tmp_path / "runs" / "results.csv")
     n_val = round(0.1 * len(queries))  # split.val_fraction of the queries validate
     n_test = len(queries) - n_val
     sets = {n: set(near) for n, near in rows}  # query 7 has no row: no correct reference
@@ -67,11 +68,9 @@ def test_the_ground_truth_file_decides_what_is_correct(route, tmp_path):
     """The same images with every reference list shifted by 30 places: recall@1 collapses."""
     root = tmp_path / "bench"
     write_vpr_bench(root, route, skew=30)
-    proc = run_here(
+    (row,), _ = sweep_rows(
         "data.source=vpr_bench", f"data.root={root}", *RAW, f"logdir={tmp_path / 'runs'}"
     )
-    assert proc.returncode == 0, proc.stderr
-    (row,) = read_results(tmp_path / "runs" / "results.csv")
     assert row.recall_at_1 < 0.1
 
 
@@ -103,15 +102,13 @@ def write_positions(root: Path, route, rng) -> tuple[np.ndarray, np.ndarray]:
 def test_positions_raw_recall_equals_a_numpy_reference(route, tmp_path):
     root = tmp_path / "drive"
     db_xy, q_xy = write_positions(root, route, np.random.default_rng(0))
-    proc = run_here(
+    (row,), _ = sweep_rows(
         "data.source=positions",
         f"data.root={root}",
         "data.radius_m=20",
         *RAW,
         f"logdir={tmp_path / 'runs'}",
     )
-    assert proc.returncode == 0, proc.stderr
-    (row,) = read_results(tmp_path / "runs" / "results.csv")
     n_test = len(q_xy) - round(0.1 * len(q_xy))
     distance = np.sqrt(((q_xy[:, None] - db_xy[None]) ** 2).sum(-1))  # dense: the oracle
     sets = [set(np.flatnonzero(distance[n] <= 20)) for n in range(n_test)]
@@ -126,7 +123,7 @@ def test_positions_raw_recall_equals_a_numpy_reference(route, tmp_path):
 def test_an_aligned_route_trains_what_learns_from_alignment(route, tmp_path):
     root = tmp_path / "bench"
     write_vpr_bench(root, route)
-    proc = run_here(
+    rows, proc = sweep_rows(
         "data.source=vpr_bench",
         f"data.root={root}",
         "data.train_source=synthetic",
@@ -141,8 +138,7 @@ def test_an_aligned_route_trains_what_learns_from_alignment(route, tmp_path):
         "fae.epochs=1",
         f"logdir={tmp_path / 'runs'}",
     )
-    assert proc.returncode == 0, proc.stderr
-    rows = {r.method: r for r in read_results(tmp_path / "runs" / "results.csv")}
+    rows = {r.method: r for r in rows}
     assert set(rows) == {"raw", "lda", "fae"} and rows["fae"].objective == "cross_season"
     # every query is a test query: validation is the route's own validation stretch
     # 150 training places less 15 validating and a gap of 10, in both seasons
@@ -156,7 +152,7 @@ def test_nordland_star_from_a_tiny_release(route, tmp_path):
         "winter": [u8(im) for im in route.images["fall"]],
     }
     root = write_release(tmp_path / "release", frames)  # images-00001 ... images-00120
-    proc = run_here(
+    rows, _ = sweep_rows(
         "preset=nordland_star",
         f"data.root={root}",
         "data.frame_list=null",  # every frame: the tiny release has none of the clean list's
@@ -165,8 +161,6 @@ def test_nordland_star_from_a_tiny_release(route, tmp_path):
         "methods=[raw,pca]",
         f"logdir={tmp_path / 'runs'}",
     )
-    assert proc.returncode == 0, proc.stderr
-    rows = read_results(tmp_path / "runs" / "results.csv")
     raw = next(r for r in rows if r.method == "raw")
     n_query = 10  # every 10th of the 100 frames 11..110
     n_test = n_query - 1
@@ -186,7 +180,7 @@ def test_nordland_clean_reads_its_frame_range(route, tmp_path):
     seasons = ("spring", "summer", "fall", "winter")
     images = [u8(im) for im in route.images["summer"]]
     root = write_release(tmp_path / "release", {s: images for s in seasons})
-    proc = run_here(
+    (row,), proc = sweep_rows(
         "preset=nordland_clean",
         f"data.root={root}",
         "data.frame_list=null",  # every frame: the tiny release has none of the clean list's
@@ -197,9 +191,7 @@ def test_nordland_clean_reads_its_frame_range(route, tmp_path):
         "season_pairs=summer-winter",
         f"logdir={tmp_path / 'runs'}",
     )
-    assert proc.returncode == 0, proc.stderr
     assert "116 frames x 4 seasons" in proc.stdout and "frames 3..118" in proc.stdout
-    (row,) = read_results(tmp_path / "runs" / "results.csv")
     assert row.n_test == 3 * 20 and row.recall_at_1 == 1.0  # identical seasons
 
 
@@ -326,7 +318,7 @@ def test_sequences_of_a_benchmark_follow_its_file_order(route, tmp_path):
     for i in range(N_PLACES):
         table[i] = (i, [j for j in (i - 1, i, i + 1) if 0 <= j < N_PLACES])
     np.save(root / "ground_truth_new.npy", table, allow_pickle=True)
-    proc = run_here(
+    rows, _ = sweep_rows(
         "data.source=vpr_bench",
         f"data.root={root}",
         *RAW,
@@ -334,8 +326,7 @@ def test_sequences_of_a_benchmark_follow_its_file_order(route, tmp_path):
         "sequence.ds=[1,4]",
         f"logdir={tmp_path / 'runs'}",
     )
-    assert proc.returncode == 0, proc.stderr
-    rows = {r.ds: r for r in read_results(tmp_path / "runs" / "results.csv")}
+    rows = {r.ds: r for r in rows}
     assert set(rows) == {1, 4} and rows[4].n_test == rows[1].n_test == N_PLACES - 12
     assert rows[4].recall_at_1 > rows[1].recall_at_1
     table = (tmp_path / "runs" / "results.md").read_text()

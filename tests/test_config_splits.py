@@ -36,7 +36,7 @@ def test_paper_preset_is_the_seeds_protocol_and_the_command_line_overrides_it():
     cfg, default = parse_config(["preset=paper"]), parse_config([])
     # The whole built-in route, every 10th frame: 3,577 images a season.
     assert (cfg.data.n_frames, cfg.data.frame_step) == (35768, 10)
-    # The seed's 2,500 training and 450 test images per season, a 100-frame gap.
+    # The paper's 2,500 training and 450 test images per season, a 100-frame gap.
     assert (cfg.split.n_train, cfg.split.n_test, cfg.split.gap) == (2500, 450, 100)
     assert cfg.tolerance == 10  # original frames: the neighbouring sampled frame
     assert method_settings(cfg, "ica").n_components == 256

@@ -103,7 +103,7 @@ def test_the_worked_example_of_your_own_method_runs(tmp_path, monkeypatch):
     state = edges.fit(train, None, None, n_components=16)
     out = edges.encode(state, train[:5])
     assert out.shape == (5, 16) and np.isfinite(np.asarray(out)).all()
-    assert edges.axes == {"skip": "served"}  # one fit serves every skip
+    assert edges.axes(None) == {"skip": "served"}  # one fit serves every skip
     shifted = edges.encode(state, train[:5], skip=5)
     np.testing.assert_allclose(shifted[:, :13], out[:, 3:], rtol=1e-5, atol=1e-5)
     assert "edges:edges" in text  # the command names it as the example defines it

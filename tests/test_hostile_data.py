@@ -9,11 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.conftest import run_here
+from tests.conftest import sweep_rows
 from tests.inputs import write_release
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
-from vpr_jax.outputs.results import read_results
 
 SEASONS = ("spring", "summer", "fall")
 METRICS = SCALAR_NAMES
@@ -39,8 +38,8 @@ def hostile_root(tmp_path_factory):
 
 def _run(root, logdir, *args):
     """The sweep's ``main`` in this process (what is tested is what it prints, logs and
-    scores; the command line's start is test_bad_input.py's)."""
-    proc = run_here(
+    scores; the command line's start is test_bad_input.py's): its rows, process and log."""
+    rows, proc = sweep_rows(
         "data.source=nordland_images",
         f"data.root={root}",
         *SPLIT,
@@ -48,9 +47,8 @@ def _run(root, logdir, *args):
         f"logdir={logdir}",
         *args,
     )
-    assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
-    return proc, (logdir / "sweep.log").read_text()
+    return rows, proc, (logdir / "sweep.log").read_text()
 
 
 def _assert_finite(rows):
@@ -62,7 +60,7 @@ def _assert_finite(rows):
 
 def test_hostile_route_is_reported_kept_and_scored(hostile_root, tmp_path):
     logdir = tmp_path / "runs"
-    proc, log = _run(
+    rows, proc, log = _run(
         hostile_root,
         logdir,
         "methods=[raw,pca,ica,fae]",
@@ -83,7 +81,6 @@ def test_hostile_route_is_reported_kept_and_scored(hostile_root, tmp_path):
         "sweep: 258 frames per season",
     ):
         assert line in proc.stdout and line in log, line
-    rows = read_results(logdir / "results.csv")
     assert len(rows) == 2 * (1 + 2 + 2 + 2)  # raw, PCA and ICA at two counts, both FAEs
     _assert_finite(rows)
     # A two-frame shift is within the default tolerance of 2: raw pixels still find most places.
@@ -93,7 +90,7 @@ def test_hostile_route_is_reported_kept_and_scored(hostile_root, tmp_path):
 
 def test_constant_frames_are_dropped_when_asked(hostile_root, tmp_path):
     logdir = tmp_path / "runs"
-    proc, log = _run(
+    rows, _, log = _run(
         hostile_root,
         logdir,
         "methods=[raw,pca]",
@@ -105,7 +102,6 @@ def test_constant_frames_are_dropped_when_asked(hostile_root, tmp_path):
         "(data.drop_constant_frames=true), 249 places left"
     ) in log
     assert "sweep: 249 frames per season" in log
-    rows = read_results(logdir / "results.csv")
     assert len(rows) == 2 * (1 + 2)
     _assert_finite(rows)
 
@@ -127,7 +123,7 @@ def test_repeated_training_frames_give_pca_that_is_pca(station_root, tmp_path):
     counts beyond the training images' numerical rank are left out with a note, for PCA and
     for ICA, instead of being scored on components that are not PCA's."""
     logdir = tmp_path / "runs"
-    proc = run_here(
+    rows, _ = sweep_rows(
         "data.source=nordland_images",
         f"data.root={station_root}",
         "data.seasons=[summer,winter]",
@@ -141,12 +137,10 @@ def test_repeated_training_frames_give_pca_that_is_pca(station_root, tmp_path):
         "pca.solver=gram",
         f"logdir={logdir}",
     )
-    assert proc.returncode == 0, proc.stderr
     log = (logdir / "sweep.log").read_text()
     assert "note: summer-winter: the PCA fit holds" in log
     assert "pca_k150: not scored: removed_pcs=150 is beyond the" in log
     assert "ica_k150: not scored: ica.n_components=8 with removed_pcs=150" in log
-    rows = read_results(logdir / "results.csv")
     assert sorted((r.method, r.removed_pcs) for r in rows) == [
         ("ica", 0),
         ("ica", 5),

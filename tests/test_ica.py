@@ -254,7 +254,7 @@ def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     route = synthetic_route(300, ("summer", "fall"), 0)
     s, f = route.images["summer"], route.images["fall"]
     train, query, db = np.concatenate([s[:200], f[:200]]), f[250:], s[250:]
-    fit = PCAFit(state=pca.fit_pca(train, 16), seconds=0.0, asked=16)
+    fit = PCAFit(state=pca.fit_pca(train, 16), seconds=0.0)
     state = pca_method.method.fit(
         train, None, None, pca_fit=fit, solver="auto", output="pixels", whiten=0
     )
@@ -265,7 +265,7 @@ def test_sweep_cells_whiten_from_the_pairs_one_pca_fit():
     settings = {"n_components": 12, "fun": "logcosh", "alpha": 1.0, "max_iter": 200, "tol": 1e-4}
     key = jax.random.key(0)
     mine = ica_method.fit(train, None, key, pca_fit=fit, removed_pcs=4, n_init=1, **settings)
-    other = PCAFit(state=pca.fit_pca(train[::-1][:300], 16), seconds=0.0, asked=16)
+    other = PCAFit(state=pca.fit_pca(train[::-1][:300], 16), seconds=0.0)
     elsewhere = ica_method.fit(train, None, key, pca_fit=other, removed_pcs=4, n_init=1, **settings)
     assert not np.allclose(ica.encode(elsewhere, query), ica.encode(mine, query))
     direct = ica.fit_ica(train, key, n_components=12, removed_pcs=4)

@@ -21,6 +21,7 @@ from tests.conftest import (
     read_run,
     run_here,
     shared_sweep,
+    sweep_rows,
 )
 from tests.inputs import FOLDERS, write_folders
 from vpr_jax.config import SplitConfig
@@ -261,16 +262,13 @@ def test_a_learning_curve_resumes_and_a_value_added_adds_only_its_cells(curve, t
     logdir, _ = curve
     copy = _copy(logdir, tmp_path)
     before = read_results(copy / "results.csv")
-    proc = run_here(*CURVE_ARGS, _places(PLACES), f"logdir={copy}")
-    assert proc.returncode == 0, proc.stderr
+    rows, proc = sweep_rows(*CURVE_ARGS, _places(PLACES), f"logdir={copy}")
     n = len(before)
     assert f"resuming: {n} of {n} cells already in results.csv" in proc.stdout
     assert "epoch" not in proc.stdout  # nothing trained again
-    assert read_results(copy / "results.csv") == before
+    assert rows == before
     more = [*PLACES, TRAINING_PLACES]
-    proc = run_here(*CURVE_ARGS, _places(more), f"logdir={copy}")
-    assert proc.returncode == 0, proc.stderr
-    after = read_results(copy / "results.csv")
+    after, proc = sweep_rows(*CURVE_ARGS, _places(more), f"logdir={copy}")
     new = [r for r in after if settings_of(r)["train_places"] == TRAINING_PLACES]
     assert len(after) == n + len(new) and {r.method for r in new} == {"raw", "pca", "fae"}
     assert f"resuming: {n} of {len(after)} cells already in results.csv" in proc.stdout

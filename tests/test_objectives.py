@@ -1,5 +1,5 @@
 """The auto-encoders' objectives: what cross_season trains on, how it is augmented and
-scored, and that its models train, checkpoint and load like the seed's."""
+scored, and that its models train, checkpoint and load like the paper's."""
 
 import jax
 import numpy as np
@@ -115,7 +115,7 @@ def test_cross_season_trains_checkpoints_and_loads(spec, tmp_path):
         encode(params, val[:5]), ae.make_encode(result.graphdef)(result.params, val[:5])
     )
     assert fit(pairs, val_pairs, "cross_season").restored
-    # The objective is part of the model's identity: the seed's objective does not reuse it.
+    # The objective is part of the model's identity: the paper's objective does not reuse it.
     with pytest.raises(UserError, match="other data or settings"):
         fit(train, val, "reconstruct")
 
@@ -177,7 +177,7 @@ def test_the_real_preset_sets_no_data_keys_and_its_logdir_names_the_source():
     argv = ["preset=real", "data.source=vpr_bench", "data.root=/nowhere"]
     cfg = parse_config(argv)
     assert cfg.logdir == "runs/real_vpr_bench" and cfg.train.augment == "auto"
-    # Without aligned training places its paired objectives give way to the seed's (each
+    # Without aligned training places its paired objectives give way to the paper's (each
     # auto-encoder's check), unless named on the command line.
     from experiments.resolve import load
     from vpr_jax.method_table import METHODS
@@ -190,13 +190,12 @@ def test_the_real_preset_sets_no_data_keys_and_its_logdir_names_the_source():
             aligned=False,
             swept={},
             given=frozenset(),
-            asked=frozenset(),  # a preset for any source asks for nothing
         )
         check = load(METHODS[name]).check
         assert check(method_settings(cfg, name), unaligned, print).objective == ("reconstruct",)
         named = method_settings(parse_config([*argv, f"{name}.objective=contrastive"]), name)
         with pytest.raises(UserError, match=f"{name}.objective=contrastive needs aligned"):
-            check(named, unaligned._replace(asked=frozenset({"objective"})), print)
+            check(named, unaligned._replace(given=frozenset({"objective"})), print)
     assert parse_config(["preset=real", "logdir=mine"]).logdir == "mine"
     assert parse_config(["train.augment=false"]).train.augment is False
 

@@ -26,6 +26,7 @@ from tests.conftest import (
     run_process,
     shared_folder,
     shared_sweep,
+    sweep_rows,
 )
 from vpr_jax.command_line import parse_config
 from vpr_jax.errors import UserError
@@ -182,10 +183,9 @@ def test_a_method_that_fails_is_one_line_and_the_fixed_method_resumes(tmp_path):
     log = (logdir / "sweep.log").read_text()
     assert line in log and 'raise RuntimeError("deliberately broken")' in log  # its traceback
     _module(tmp_path / "mine", "my_methods", CENTRED_PIXELS)
-    fixed = run_here(*args, path=[tmp_path / "mine"])
-    assert fixed.returncode == 0, fixed.stderr
+    rows, fixed = sweep_rows(*args, path=[tmp_path / "mine"])
     assert "resuming: 1 of 2 cells" in fixed.stdout
-    assert [r.method for r in read_results(logdir / "results.csv")] == ["raw", "centred_pixels"]
+    assert [r.method for r in rows] == ["raw", "centred_pixels"]
 
 
 INFO = MethodInfo(name="centred_pixels", method="my_methods:centred_pixels", plugin=True)
@@ -291,7 +291,7 @@ class every:
 def test_a_method_using_every_declaration_runs_as_declared(tmp_path):
     _module(tmp_path / "mine", "every_decl", EVERY_DECLARATION)
     logdir = tmp_path / "runs"
-    proc = run_here(
+    found, proc = sweep_rows(
         *SMALL_ROUTE,
         "methods=[pca,every_decl:every]",
         "removed_pcs=[0,5]",
@@ -300,10 +300,9 @@ def test_a_method_using_every_declaration_runs_as_declared(tmp_path):
         f"logdir={logdir}",
         path=[tmp_path / "mine"],
     )
-    assert proc.returncode == 0, proc.stderr
     assert "note: every: n=400 capped to 244" in proc.stdout  # 249 held, less removed 5
     assert "note: every: skip=500 left out (n=400)" in proc.stdout
-    rows = [r for r in read_results(logdir / "results.csv") if r.method == "every"]
+    rows = [r for r in found if r.method == "every"]
     cells = sorted((r.removed_pcs, r.setting) for r in rows)
     assert cells == [(k, f"skip={s}") for k in (0, 5) for s in (0, 2)]
     assert {r.n_iter for r in rows} == {244, 249} and all(r.seed == 0 for r in rows)
@@ -315,7 +314,7 @@ def test_a_method_that_needs_alignment_is_refused_without_aligned_places(tmp_pat
     monkeypatch.syspath_prepend(str(tmp_path))
     cfg = parse_config(["methods=[aligned_only:centred_pixels]", "plugin.centred_pixels.record=x"])
     (mine,) = resolve_methods(cfg, True, "synthetic", frozenset())
-    assert mine.method.needs == ("aligned",) and mine.name == "centred_pixels"
+    assert mine.method.needs(None) == ("aligned",) and mine.name == "centred_pixels"
     with pytest.raises(UserError, match="needs 'aligned'.*data.source=vpr_bench.*train_source"):
         resolve_methods(cfg, False, "vpr_bench", frozenset())
     both = resolve_methods(parse_config(["methods=[raw,lda]"]), True, "synthetic", frozenset())

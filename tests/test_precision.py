@@ -8,7 +8,7 @@ inline, and every ``dot_general`` and convolution in them must carry float32 pre
 the default, as a user's program may. Whole sweeps are read, not a list of functions, so a
 product added anywhere a sweep reaches (a fit, an encoder, a check, the matcher, a user's
 method) fails here. The exceptions are the programs the code names
-with its reason (``train.PLATFORM_PRECISION``) and the matcher's ``matching.precision=
+with its reason (``train_programs.PLATFORM_PRECISION``) and the matcher's ``matching.precision=
 default``, which asks for the platform's fastest products.
 """
 
@@ -26,7 +26,7 @@ from tests.inputs import N_PLACES, read_grey, write_vpr_bench
 from tests.programs import jaxpr_of, lowered_programs, n_products, unpinned
 from vpr_jax import load_encoder
 from vpr_jax.data.synthetic import synthetic_route
-from vpr_jax.encoders.train import PLATFORM_PRECISION
+from vpr_jax.encoders.train_programs import PLATFORM_PRECISION
 from vpr_jax.evaluation import sequence
 from vpr_jax.evaluation.matching import _top_k_unpadded
 from vpr_jax.precision import f32_matmul, float32_products

@@ -290,7 +290,7 @@ def test_start_decay_adds_its_pull_towards_the_start_to_the_gradient(seasons):
     """Plain SGD, one step from weights moved off their start: the step with
     ``start_decay`` d differs from the step without by -learning_rate x d x (params -
     anchor), leaf by leaf (the gradient of d/2 x ||params - anchor||^2)."""
-    from vpr_jax.encoders.train import make_optimizer, make_train_step, start_penalty
+    from vpr_jax.encoders.train_programs import make_optimizer, make_train_step, start_penalty
 
     graphdef, anchor = ae.build(ae.FAESpec(hidden=8, standardise=True), jax.random.key(0))
     params = jax.tree.map(lambda a: a + 0.01 * jnp.cos(jnp.arange(a.size)).reshape(a.shape), anchor)
@@ -323,7 +323,7 @@ def test_a_scale_update_leaves_the_start_and_trains_only_a_scale_and_shift_per_u
     (numpy: relu(x W + b) of the standardised images) until trained; contrastive steps then
     move each unit's scale and shift and leave the hidden layer's weights and biases at
     their start to the bit (the decoder is no part of the code and trains as it would)."""
-    from vpr_jax.encoders.train import make_optimizer, make_train_step
+    from vpr_jax.encoders.train_programs import make_optimizer, make_train_step
 
     spec = ae.FAESpec(hidden=8, standardise=True, update="scale")
     graphdef, params = ae.build(spec, jax.random.key(0))
@@ -355,7 +355,7 @@ def test_a_cae_started_at_lda_leads_with_the_fae_start_and_keeps_its_convolution
     there (the FAE's start has its numpy oracle above); the conv code is the drawn one
     times CONV_START_SCALE (ReLU is positively homogeneous), and a contrastive step moves
     every convolution (a zeroed code layer would not)."""
-    from vpr_jax.encoders.train import make_optimizer, make_train_step
+    from vpr_jax.encoders.train_programs import make_optimizer, make_train_step
 
     a, b = seasons[0][:64], seasons[1][:64]
     spec = ae.CAESpec(

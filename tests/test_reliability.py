@@ -21,6 +21,7 @@ from tests.conftest import (
     run_here,
     run_process,
     started,
+    sweep_rows,
 )
 from vpr_jax import load_encoder
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
@@ -83,8 +84,7 @@ def _signal_during(line_part: str, args: list[str], tmp_path: Path, sig=signal.S
 def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp_path):
     """The killed sweep is a process of its own; the uninterrupted one and the resume run in
     this process (what is compared is the files they leave)."""
-    whole = run_here(*KILLABLE, f"logdir={tmp_path / 'whole' / 'runs'}")
-    assert whole.returncode == 0, whole.stderr
+    whole, _ = sweep_rows(*KILLABLE, f"logdir={tmp_path / 'whole' / 'runs'}")
 
     logdir, ck = tmp_path / "cut" / "runs", tmp_path / "cut" / "checkpoints"
     args = [*KILLABLE, f"logdir={logdir}", f"train.checkpoint_dir={ck}"]
@@ -94,14 +94,13 @@ def test_sigkill_in_autoencoder_training_resumes_to_the_uninterrupted_result(tmp
     rows_at_kill = read_results(logdir / "results.csv")
     assert 0 < len(rows_at_kill) < 4
 
-    again = run_here(*args)
-    assert again.returncode == 0, again.stderr
+    rows, again = sweep_rows(*args)
     assert "resuming: 3 of 4 cells" in again.stdout
     # The kill may land before or during epoch 3's save: training resumes after 2 or 3.
     assert "spring-fall fae_cross_season: resuming after epoch" in again.stdout
 
-    expected = _cells(read_results(tmp_path / "whole" / "runs" / "results.csv"))
-    assert _cells(read_results(logdir / "results.csv")) == expected
+    expected = _cells(whole)
+    assert _cells(rows) == expected
 
     ea = read_run(logdir / "spring-fall" / "fae_cross_season_training")
     for tag in ("loss/train", "loss/validation"):
@@ -126,11 +125,10 @@ def test_ctrl_c_saves_finished_cells_and_prints_the_resume_command(tmp_path):
 
     command = shlex.split(line.split("resume with: ", 1)[1])
     assert command[:3] == ["python", "-m", "experiments.sweep"]
-    again = run_here(*command[3:])  # its arguments, run in this process
-    assert again.returncode == 0, again.stderr
+    rows, again = sweep_rows(*command[3:])  # its arguments, run in this process
     assert "resuming: 1 of 4 cells" in again.stdout
     assert "summer-fall fae_cross_season: resuming after epoch" in again.stdout
-    assert len(_cells(read_results(logdir / "results.csv"))) == 4
+    assert len(_cells(rows)) == 4
 
 
 def test_sigterm_stops_like_ctrl_c(tmp_path):
@@ -151,24 +149,22 @@ def test_the_same_seed_gives_the_same_table(small_sweep, tmp_path):
     """One pair of the small sweep again, every method: the same cells to the last digit
     (a pair's fits depend on the seed and its own images only)."""
     first, _ = small_sweep
-    proc = run_here(*SMALL, "season_pairs=spring-fall", f"logdir={tmp_path / 'runs'}")
-    assert proc.returncode == 0, proc.stderr
-    again = _cells(read_results(tmp_path / "runs" / "results.csv"))
+    rows, _ = sweep_rows(*SMALL, "season_pairs=spring-fall", f"logdir={tmp_path / 'runs'}")
+    again = _cells(rows)
     whole = _cells(read_results(first / "results.csv"))
     assert len(again) == 15 and again == {k: v for k, v in whole.items() if k[0] == "spring-fall"}
 
 
 def test_another_seed_gives_another_route_and_other_initial_weights(small_sweep, tmp_path):
     first, _ = small_sweep
-    proc = run_here(
+    rows, _ = sweep_rows(
         *SMALL,
         "seed=1",
         "season_pairs=summer-fall",
         "methods=[raw,fae]",
         f"logdir={tmp_path / 'runs'}",
     )
-    assert proc.returncode == 0, proc.stderr
-    other = _cells(read_results(tmp_path / "runs" / "results.csv"))
+    other = _cells(rows)
     same_seed = _cells(read_results(first / "results.csv"))
     key = ("summer-fall", "raw", "", 0)
     assert other[key] != same_seed[key]  # raw pixels: only the route can differ
@@ -202,9 +198,7 @@ def test_one_sweep_per_logdir_and_the_lock_dies_with_its_holder(tmp_path):
         assert_one_line_error(second, *words)
         assert (logdir / "results.csv").read_bytes() == before  # nothing touched
     # SIGKILL leaves no stale lock: the same command now runs and adds its cells once.
-    third = run_here(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
-    assert third.returncode == 0, third.stderr
-    rows = read_results(logdir / "results.csv")
+    rows, _ = sweep_rows(*args, "removed_pcs=[0,5]", "methods=[raw,pca]")
     assert sorted((r.method, r.removed_pcs) for r in rows) == [("pca", 0), ("pca", 5), ("raw", 0)]
     assert not (logdir / ".incomplete").exists()
 
@@ -242,9 +236,7 @@ def test_a_disk_fault_mid_sweep_is_one_line_and_the_rerun_completes(tmp_path):
     )
     saved = read_results(logdir / "results.csv")
     assert 1 <= len(saved) < 3 * 4 and f"{len(saved)} finished cell(s) are saved" in line
-    again = run_here(*args)  # the rerun, in this process
-    assert again.returncode == 0, again.stderr
-    rows = read_results(logdir / "results.csv")
+    rows, _ = sweep_rows(*args)  # the rerun, in this process
     assert (
         len(rows) == 3 * 4 and len({(r.season_pair, r.method, r.removed_pcs) for r in rows}) == 12
     )
@@ -288,9 +280,7 @@ def test_a_checkpoint_that_cannot_be_written_is_one_line_and_the_rerun_completes
     )
     saved = read_results(logdir / "results.csv")
     assert [r.method for r in saved] == ["raw"] and "1 finished cell(s)" in line
-    again = run_here(*args)  # the rerun, in this process
-    assert again.returncode == 0, again.stderr
-    rows = read_results(logdir / "results.csv")
+    rows, _ = sweep_rows(*args)  # the rerun, in this process
     assert sorted(r.method for r in rows) == ["fae", "raw"]
     encode, params = load_encoder(models / "runs" / "summer-fall" / "fae")
     assert encode(params, np.zeros((2, 32, 64), np.float32)).shape[0] == 2
@@ -316,9 +306,7 @@ def test_a_full_disk_is_one_line_and_the_same_command_completes_once_space_is_fr
         remount = run_process(["mount", "-o", "remount,size=20m", str(mount)], timeout=60)
         assert remount.returncode == 0, remount.stderr
         # A process of its own: one in this process would keep files on the mount open.
-        again = run_cli(*args)
-        assert again.returncode == 0, again.stderr
-        rows = read_results(mount / "runs" / "results.csv")
+        rows, _ = sweep_rows(*args, run=run_cli)
         assert len(rows) == len({r.run for r in rows}) == 12
         assert not (mount / "runs" / ".incomplete").exists()
     finally:

@@ -7,7 +7,7 @@ import shutil
 import cv2
 import numpy as np
 
-from tests.conftest import SMALL, run_here
+from tests.conftest import SMALL, run_here, sweep_rows
 from vpr_jax.outputs.plots import correct_matches_figure
 from vpr_jax.outputs.results import COLUMNS, ResultRow, read_results
 
@@ -51,8 +51,7 @@ def test_a_figure_that_fails_leaves_the_rest_of_the_report_and_a_rerun_completes
     # A folder where the figure goes: writing it fails, as a full or read-only disk would.
     (logdir / "figures" / "correct_matches.png" / "in_the_way").mkdir(parents=True)
     args = (*SMALL, f"logdir={logdir}", f"train.checkpoint_dir={checkpoints}")
-    proc = run_here(*args)
-    assert proc.returncode == 0, proc.stderr
+    rows, proc = sweep_rows(*args)
     warnings = [ln for ln in proc.stdout.splitlines() if ln.startswith("warning: figures/")]
     assert len(warnings) == 1 and "figures/correct_matches.png not written" in warnings[0]
     assert "rerun the same command" in warnings[0]
@@ -62,7 +61,7 @@ def test_a_figure_that_fails_leaves_the_rest_of_the_report_and_a_rerun_completes
     listing = (logdir / "encoders.csv").read_text().splitlines()
     assert len(listing) > 1
     assert cv2.imread(str(logdir / "figures" / "pr_curves.png")) is not None
-    assert len(read_results(logdir / "results.csv")) == len(read_results(finished / "results.csv"))
+    assert len(rows) == len(read_results(finished / "results.csv"))
 
     shutil.rmtree(logdir / "figures" / "correct_matches.png")
     proc = run_here(*args)

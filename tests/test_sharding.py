@@ -25,6 +25,7 @@ from tests.conftest import (
     run_process,
     shared_folder,
     started,
+    sweep_rows,
 )
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.outputs.results import read_results
@@ -161,7 +162,7 @@ def test_two_processes_on_loopback_compute_one_sharded_similarity(tmp_path):
         np.testing.assert_allclose(z["scores"], np.take_along_axis(sim, order, 1), atol=1e-5)
 
 
-# The seed's objective only: a tiny FAE trained on eight places a step over four devices of
+# The paper's objective only: a tiny FAE trained on eight places a step over four devices of
 # two processes drifts further from the one-process run than the tolerance below allows
 # (gloo's reductions round differently); the eight-device test above covers cross_season.
 TINY = [
@@ -180,8 +181,7 @@ TINY = [
 
 
 def test_a_sweep_over_two_processes_equals_one_process_and_only_process_0_writes(tmp_path):
-    one = run_here(*TINY, f"logdir={tmp_path / 'one'}")  # the one-process sweep: here
-    assert one.returncode == 0, one.stderr
+    one, _ = sweep_rows(*TINY, f"logdir={tmp_path / 'one'}")  # the one-process sweep: here
     port, logdir = _free_port(), tmp_path / "two"
     args = [
         "-m",
@@ -195,7 +195,7 @@ def test_a_sweep_over_two_processes_equals_one_process_and_only_process_0_writes
     ]
     devices = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     _run_together([[*args, f"mesh.process_id={i}"] for i in range(2)], tmp_path / "logs", **devices)
-    _same_rows(read_results(logdir / "results.csv"), read_results(tmp_path / "one" / "results.csv"))
+    _same_rows(read_results(logdir / "results.csv"), one)
     assert len(read_results(logdir / "results.csv")) == 4  # written once, not once per process
     assert (tmp_path / "ck" / "two" / "summer-fall" / "fae").is_dir()
 

@@ -10,7 +10,7 @@ import pytest
 from tensorboard.plugins.hparams import plugin_data_pb2
 from tensorboard.util import tensor_util
 
-from tests.conftest import SMALL, numpy_cosine, read_run, run_here
+from tests.conftest import SMALL, numpy_cosine, read_run, run_here, sweep_rows
 from vpr_jax.outputs.results import COLUMNS, read_results
 
 PAIRS = {"summer-spring", "summer-fall", "spring-fall"}
@@ -191,13 +191,11 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
     # The models trained by the first run are restored, not retrained (a copy of them: the
     # shared sweep's worker holds their folders' locks; both logdirs are "runs").
     checkpoints = shutil.copytree(finished.parent / "checkpoints", tmp_path / "checkpoints")
-    proc = run_here(*SMALL, f"logdir={logdir}", f"train.checkpoint_dir={checkpoints}")
-    assert proc.returncode == 0, proc.stderr
+    again, proc = sweep_rows(*SMALL, f"logdir={logdir}", f"train.checkpoint_dir={checkpoints}")
     assert f"resuming: {len(kept)} of {len(rows)}" in proc.stdout
     assert "spring-fall fae: restored the trained model" in proc.stdout
     assert "validation loss" not in proc.stdout
     assert proc.stdout.count(": recall@1") == len(lost)
-    again = read_results(logdir / "results.csv")
     assert len(again) == len(rows)
     metric = ("recall_at_1", "auc_pr", "recall_at_100_precision", "recall_at_10")
     by_run = {r.run: r for r in again}
@@ -213,20 +211,17 @@ def test_rerun_skips_finished_cells_and_recomputes_lost_ones(small_sweep, tmp_pa
 
 
 def test_named_pairs_select_database_and_query_seasons(tmp_path):
-    proc = run_here(*SMALL, "season_pairs=fall-summer", "methods=raw", f"logdir={tmp_path}")
-    assert proc.returncode == 0, proc.stderr
-    (row,) = read_results(tmp_path / "results.csv")
+    (row,), _ = sweep_rows(*SMALL, "season_pairs=fall-summer", "methods=raw", f"logdir={tmp_path}")
     assert (row.db_season, row.query_season) == ("fall", "summer")
 
 
 def test_pixel_output_gives_the_same_metrics(small_sweep, tmp_path):
     logdir, _ = small_sweep
-    proc = run_here(
+    rows, _ = sweep_rows(
         *SMALL, "season_pairs=summer-fall", "methods=pca", "pca.output=pixels", f"logdir={tmp_path}"
     )
-    assert proc.returncode == 0, proc.stderr
     coeff = {r.run: r for r in read_results(logdir / "results.csv")}
-    for r in read_results(tmp_path / "results.csv"):
+    for r in rows:
         assert r.recall_at_1 == pytest.approx(coeff[r.run].recall_at_1, abs=0.01)
         assert np.isfinite(r.encode_ms_per_image)
 
@@ -238,15 +233,13 @@ def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path)
 
     logdir = tmp_path / "sections"
     split_keys = ["split.test_sections=2", "split.n_test=60", "split.gap=20", "split.database=all"]
-    proc = run_here(
+    (row,), _ = sweep_rows(
         *[k for k in SMALL if not k.startswith("split.")],
         *split_keys,
         "methods=[raw]",
         "season_pairs=summer-fall",
         f"logdir={logdir}",
     )
-    assert proc.returncode == 0, proc.stderr
-    (row,) = read_results(logdir / "results.csv")
     # Oracle: numpy brute force over every frame of the database season.
     route = synthetic_route(700, ("summer", "fall"), 0)
     split = make_split(route.frame_ids, SplitConfig(test_sections=2, n_test=60, gap=20))

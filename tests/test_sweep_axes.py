@@ -16,9 +16,9 @@ from tests.conftest import (
     TINY_MODELS,
     TINY_ROUTE,
     read_run,
-    run_here,
     shared_folder,
     shared_sweep,
+    sweep_rows,
 )
 from vpr_jax import load_encoder
 from vpr_jax.outputs.results import read_results
@@ -161,9 +161,8 @@ def test_a_value_added_to_a_list_adds_only_its_cells(axes, tmp_path):
     shutil.copytree(checkpoints, tmp_path / "checkpoints")
     more = [a.replace("[4,8]", "[4,8,6]") for a in args]
     more = [a for a in more if "checkpoint_dir" not in a]
-    proc = run_here(*more, f"logdir={copy}", path=[mine])
-    assert proc.returncode == 0, proc.stderr
-    before, after = (len(read_results(Path(d) / "results.csv")) for d in (logdir, copy))
+    rows, proc = sweep_rows(*more, f"logdir={copy}", path=[mine])
+    before, after = len(read_results(logdir / "results.csv")), len(rows)
     assert after - before == 2  # n_components=6 at skip 0 and 2
     assert f"resuming: {before} of {after} cells" in proc.stdout
 
@@ -173,7 +172,7 @@ def test_training_settings_and_inputs_are_axes_and_the_baseline_a_key(tmp_path):
     runner's validation rule chooses), the residual input among them; ``baseline`` names
     what results.md's paired differences are to."""
     logdir = tmp_path / "runs"
-    proc = run_here(
+    rows, _ = sweep_rows(
         *TINY_ROUTE,
         "season_pairs=summer-fall",
         "methods=[raw,lda,fae,cae]",
@@ -187,8 +186,6 @@ def test_training_settings_and_inputs_are_axes_and_the_baseline_a_key(tmp_path):
         "baseline=lda",
         f"logdir={logdir}",
     )
-    assert proc.returncode == 0, proc.stderr
-    rows = read_results(logdir / "results.csv")
     fae = [r for r in rows if r.method == "fae"]
     assert sorted(r.setting for r in fae) == ["learning_rate=0.0001", "learning_rate=0.001"]
     cae = [r for r in rows if r.method == "cae"]
@@ -208,7 +205,7 @@ def test_a_setting_of_the_shared_pca_fit_is_an_axis_with_a_fit_per_value(tmp_pat
     """``pca.solver=[covariance,gram]``: pca's cells get a shared fit per value (and, PCA
     being PCA whatever solves it, the same numbers); ica takes the first value's fit."""
     logdir = tmp_path / "runs"
-    proc = run_here(
+    rows, _ = sweep_rows(
         *TINY_ROUTE,
         "season_pairs=summer-fall",
         "methods=[pca,ica]",
@@ -217,8 +214,6 @@ def test_a_setting_of_the_shared_pca_fit_is_an_axis_with_a_fit_per_value(tmp_pat
         "ica.n_components=8",
         f"logdir={logdir}",
     )
-    assert proc.returncode == 0, proc.stderr
-    rows = read_results(logdir / "results.csv")
     pca = {(r.setting, r.removed_pcs): r for r in rows if r.method == "pca"}
     assert set(pca) == {(f"solver={s}", k) for s in ("covariance", "gram") for k in (0, 5)}
     for k in (0, 5):

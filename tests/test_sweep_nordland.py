@@ -5,10 +5,9 @@ places are real places)."""
 import cv2
 import numpy as np
 
-from tests.conftest import run_here
+from tests.conftest import sweep_rows
 from tests.inputs import write_release
 from vpr_jax.data.synthetic import render_season
-from vpr_jax.outputs.results import read_results
 
 SEASONS = ("summer", "fall")
 N_FRAMES = 90
@@ -28,11 +27,9 @@ def _frames(season):
 
 def test_image_release_folder_runs_through_the_cli(tmp_path):
     root = write_release(tmp_path / "nordland", {s: _frames(s) for s in SEASONS})
-    proc = run_here(
+    rows, _ = sweep_rows(
         "data.source=nordland_images", f"data.root={root}", *SPLIT, f"logdir={tmp_path / 'runs'}"
     )
-    assert proc.returncode == 0, proc.stderr
-    rows = read_results(tmp_path / "runs" / "results.csv")
     assert {(r.method, r.removed_pcs) for r in rows} == {("raw", 0), ("pca", 0), ("pca", 3)}
     assert all(r.n_train == 2 * 41 and r.n_test == 30 for r in rows)  # 50 less 5 val, gap 4
     assert all(r.recall_at_1 > 0 for r in rows)
@@ -57,14 +54,10 @@ def test_season_videos_run_through_the_cli_and_are_cached(tmp_path):
         *SPLIT,
         "methods=raw",
     ]
-    proc = run_here(*args, f"logdir={tmp_path / 'runs'}")
-    assert proc.returncode == 0, proc.stderr
+    (row,), _ = sweep_rows(*args, f"logdir={tmp_path / 'runs'}")
     assert len(list((tmp_path / "cache").iterdir())) == 2
-    (row,) = read_results(tmp_path / "runs" / "results.csv")
     assert row.n_test == 30 and row.recall_at_1 > 0
     root.joinpath("nordland_summer.avi").touch()  # newer mtime: a new cache entry
-    proc = run_here(*args, f"logdir={tmp_path / 'runs2'}")
-    assert proc.returncode == 0, proc.stderr
+    again, _ = sweep_rows(*args, f"logdir={tmp_path / 'runs2'}")
     assert len(list((tmp_path / "cache").iterdir())) == 3
-    again = read_results(tmp_path / "runs2" / "results.csv")[0]
-    assert again.recall_at_1 == row.recall_at_1
+    assert again[0].recall_at_1 == row.recall_at_1

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from tensorboard.plugins.hparams import plugin_data_pb2
 
-from tests.conftest import read_run, run_here, shared_folder, shared_sweep
+from tests.conftest import read_run, run_here, shared_folder, shared_sweep, sweep_rows
 from tests.inputs import write_release
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
@@ -53,9 +53,7 @@ def releases(tmp_path_factory):
 
 
 def _sweep(root, logdir, *extra):
-    proc = run_here(*ARGS, f"data.root={root}", f"logdir={logdir}", *extra)
-    assert proc.returncode == 0, proc.stderr
-    return read_results(logdir / "results.csv"), proc
+    return sweep_rows(*ARGS, f"data.root={root}", f"logdir={logdir}", *extra)
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,8 @@ from vpr_jax.config import TrainConfig
 from vpr_jax.data.synthetic import synthetic_route
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders import checkpoints
-from vpr_jax.encoders.train import TrainingData, TrainOptions, fit_autoencoder, make_eval_loss
+from vpr_jax.encoders.train import TrainingData, TrainOptions, fit_autoencoder
+from vpr_jax.encoders.train_programs import make_eval_loss
 from vpr_jax.errors import UserError
 from vpr_jax.methods.loading import load_encoder
 from vpr_jax.outputs.tb import TrainingRun

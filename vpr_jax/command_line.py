@@ -1,6 +1,6 @@
 """The command line: ``python -m experiments.sweep [key=value ...]`` merged with the preset
 file and the defaults into the typed ``SweepConfig`` (OmegaConf), and what the command line
-named (given keys; asked keys, the preset's too)."""
+named (its given keys)."""
 
 from __future__ import annotations
 
@@ -38,20 +38,8 @@ def _normalise_cli(argv: list[str]) -> list[str]:
 
 
 def given_keys(argv: list[str]) -> frozenset[str]:
-    """The dotted keys ``key=value`` arguments set (``ica.n_components``, ``removed_pcs``)."""
+    """The dotted keys ``key=value`` arguments set (``ica.n_components``, ``seeds``)."""
     return frozenset(arg.partition("=")[0] for arg in argv)
-
-
-def asked_keys(argv: list[str]) -> frozenset[str]:
-    """What the user asked for by name: the keys of the command line and of its preset
-    file, unless that preset sets no data keys (``presets.SOURCE_FREE``: it asks for nothing
-    a source cannot serve). What learns from aligned places is refused on data without them
-    when asked for, and left out quietly otherwise."""
-    given = given_keys(argv)
-    preset = dict(a.partition("=")[::2] for a in argv).get("preset", SweepKnobs.preset)
-    if preset in presets.SOURCE_FREE:
-        return given
-    return given | presets.keys(preset)
 
 
 def _first_line(err: OmegaConfBaseException) -> str:

@@ -158,7 +158,7 @@ class DataConfig:
 class SplitConfig:
     """Training and test places: disjoint stretches of the route, ``gap`` frames apart.
 
-    Counts (the seed's protocol): the first ``n_train`` frames train, the next ``n_test``
+    Counts (the paper's protocol): the first ``n_train`` frames train, the next ``n_test``
     after the gap test. Setting ``train_fraction`` switches to fractions: that share of the
     route trains and everything after the gap tests. Setting ``test_sections`` switches to
     Olid et al.'s partition of the whole route: that many test sections of ``n_test``
@@ -211,7 +211,7 @@ class TrainConfig:
     learning_rate: float = 1e-3
     optimizer: str = "adam"  # adam | adamw | sgd (optax)
     patience: int = 3  # epochs without a better validation recall@1 before stopping
-    # true: the seed's Table 2 (horizontal flip, width/height shift 0.2); false: none; auto:
+    # true: the paper's Table 2 (horizontal flip, width/height shift 0.2); false: none; auto:
     # train both and keep the better on the validation places' recall@1; place: no flip,
     # shifts of 0.05 (augmentation that keeps the place: vpr_jax.data.augment.PLACE).
     augment: Any = True

@@ -41,10 +41,9 @@ BUILTIN: tuple[MethodInfo, ...] = (
 )
 METHODS: dict[str, MethodInfo] = {m.name: m for m in BUILTIN}
 NAMES: tuple[str, ...] = tuple(METHODS)
-# Fits a pair shares with every method that needs them (a resource of methods.contract's
-# NEEDS), each declared by the method that offers it: resource -> (that method, its
-# SharedFit object).
-OFFERS = {"pca_fit": ("pca", "vpr_jax.methods.pca:shared")}
+# The method whose settings shape the pair's shared PCA fit (resource ``pca_fit``): its
+# module's ``shared_fit``, made by the runner (experiments.fitting).
+SHARED_PCA = "pca"
 PRECOMPUTED = "precomputed"  # the methods entry that asks for outside descriptors only
 OUTSIDE = "vpr_jax.methods.precomputed:method"  # the method every set of them is
 
@@ -68,7 +67,7 @@ def plugin_name(spec: str) -> str:
 
 
 def model_name(method: str, objective: str = "") -> str:
-    """``fae`` for the seed's objective (and methods without one), ``fae_cross_season``
+    """``fae`` for the paper's objective (and methods without one), ``fae_cross_season``
     otherwise: names the cell's run, the model's folder, its training run, its
     method-by-method run and its legend entry."""
     return method if objective in ("", "reconstruct") else f"{method}_{objective}"

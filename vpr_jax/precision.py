@@ -18,8 +18,9 @@ imports vpr_jax and sets its own default still gets the numbers the suite scored
   the platform's fastest, where speed on a GPU matters most (docs/speed.md, "Any device").
 
 The auto-encoders' training steps state nothing and keep the platform's default
-(``vpr_jax.encoders.train.PLATFORM_PRECISION``): their rounding is noise next to SGD's, and
-nothing is chosen by it (a model's epoch is kept by recall on codes made at float32).
+(``vpr_jax.encoders.train_programs.PLATFORM_PRECISION``): their rounding is noise next to
+SGD's, and nothing is chosen by it (a model's epoch is kept by recall on codes made at
+float32).
 tests/test_precision.py reads every program a fit, an encoder and the matcher compile and
 fails on a product that states no precision.
 """

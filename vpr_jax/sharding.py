@@ -16,6 +16,9 @@ process passes the same whole host array (each process has loaded the same data)
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -24,6 +27,8 @@ from jax.sharding import AxisType, Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from vpr_jax import host_arrays
+from vpr_jax.config import MeshConfig
+from vpr_jax.errors import UserError, first_line
 
 AXIS = "data"
 
@@ -47,6 +52,34 @@ def make_mesh(devices: int = 0) -> Mesh | None:
         return None
     # Auto axes: XLA propagates the batch sharding through the training step by itself.
     return jax.make_mesh((n,), (AXIS,), axis_types=(AxisType.Auto,), devices=available[:n])
+
+
+def start_devices(cfg: MeshConfig, log: Callable[[str], Any]) -> Mesh | None:
+    """Join the other processes (``mesh.distributed``), then build the device mesh: before
+    the methods' checks, which ask how many devices a batch splits over."""
+    if cfg.distributed:
+        # CPU devices of several processes talk through gloo; GPUs use NCCL regardless.
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+        try:
+            jax.distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
+        except (RuntimeError, ValueError) as err:
+            raise UserError(
+                f"mesh.distributed=true could not join the other processes ({first_line(err)}): "
+                "start one process per host under a launcher JAX detects (SLURM, Open MPI), or "
+                "set mesh.coordinator=HOST:PORT, mesh.num_processes and mesh.process_id"
+            ) from None
+    try:
+        mesh = make_mesh(cfg.devices)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    if mesh is not None:
+        devices = mesh.devices.flat
+        log(
+            f"mesh: {mesh_size(mesh)} {devices[0].platform} devices in "
+            f"{jax.process_count()} process(es); PCA samples, matching database and "
+            "training batches are split over them"
+        )
+    return mesh
 
 
 def mesh_size(mesh: Mesh | None) -> int:

@@ -12,7 +12,7 @@ from vpr_jax.shapes import IMAGE_SHAPE
 __all__ = ["IMAGE_SHAPE", "SEASON_ORDER", "Route"]
 
 # Database-first order: for an unordered pair, the season earlier in this list is the
-# database (the robot's memory) and the later one the queries. It reproduces the seed's
+# database (the robot's memory) and the later one the queries. It reproduces the paper's
 # pairs summer-fall, spring-fall and summer-spring.
 SEASON_ORDER = ("summer", "spring", "fall", "winter")
 

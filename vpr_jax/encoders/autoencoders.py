@@ -1,4 +1,4 @@
-"""The seed's learned encoders: a one-hidden-layer auto-encoder (FAE) and a convolutional
+"""The paper's learned encoders: a one-hidden-layer auto-encoder (FAE) and a convolutional
 auto-encoder (CAE). The code (bottleneck) is the place descriptor.
 
 Flax NNX modules stay behind a functional boundary: ``build`` splits a module once into a
@@ -11,7 +11,7 @@ inside its own functions.
   images lie in [0, 1]). See ``FAE`` for why the centring.
 - CAE on (32, 64, 1): per level a same-padded convolution (ReLU) and 2x2 max-pooling, then a
   3x3 convolution to ``code_channels``; the decoder mirrors it with nearest-neighbour
-  up-sampling (the seed's "up-pooling") and ends in a sigmoid. The default is sized like
+  up-sampling (the paper's "up-pooling") and ends in a sigmoid. The default is sized like
   CALC's encoder (rpng/calc: about 137k parameters, a code of about 1k values) with two
   down-sampling steps instead of three, since our images are 32x64, not 120x160:
   5x5x64, pool, 4x4x128, pool, 3x3x8 -> a 8x16x8 = 1,024-value code, 142k encoder
@@ -49,7 +49,7 @@ from vpr_jax.shapes import IMAGE_SHAPE
 
 class FAESpec(NamedTuple):
     hidden: int = 256  # code length
-    centre: float = 0.5  # subtracted from every pixel before the hidden layer (0: the seed's)
+    centre: float = 0.5  # subtracted from every pixel before the hidden layer (0: the paper's)
     standardise: bool = False  # each image to zero mean and std 1/4 first (centre unused)
     removed: int = 0  # leading principal components taken out of every image first (Removal)
     # all: every weight trains; scale: the hidden layer's weights and biases stay at their
@@ -141,7 +141,7 @@ class FAE(nnx.Module, _Residual):
     """code = relu((x - centre) W + b); reconstruction = sigmoid(code W' + b') of the
     ``residual`` image x (the image itself unless components are removed).
 
-    The seed's layer is centre = 0. Then each unit's pre-activation carries 0.5 x the sum of
+    The paper's layer is centre = 0. Then each unit's pre-activation carries 0.5 x the sum of
     its weights, nearly the same for every image: about half the ReLU units start dead and
     training kills most of the rest; on patch-normalised images, whose patches all have the
     same mean, every unit dies. Subtracting mid-grey keeps them alive, which starting the
@@ -353,7 +353,7 @@ class ModelState:
     spec: Spec = dataclasses.field(metadata={"static": True})
     image_shape: tuple[int, int] = dataclasses.field(metadata={"static": True})
     kept_epoch: Array | None = None  # () int: the epoch whose parameters these are (0: the
-    # start, untouched by training); None: a state saved before 2026-12-05
+    # start, untouched by training); None: a state saved without it
     start_params: dict | None = None  # a model that kept a later epoch: its starting
     # weights, for the paired comparison with its start; None: kept at its start
 

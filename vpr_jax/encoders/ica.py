@@ -253,7 +253,7 @@ def fit_ica(
     (the sweep shares one per season pair); otherwise PCA is fitted here, only as far as a
     given ``n_components`` reaches.
     ``n_components="all"`` keeps every component the data allow after removing
-    ``removed_pcs`` (the seed's "all ICs, no dimension reduction").
+    ``removed_pcs`` (the paper's "all ICs, no dimension reduction").
     """
     _check_settings(fun, alpha, max_iter, tol, n_init, key, w_init)
 

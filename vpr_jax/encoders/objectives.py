@@ -1,6 +1,6 @@
 """What an auto-encoder learns to do: the training objectives, as per-example losses.
 
-- ``reconstruct`` (the seed's): an image -> itself. Training data: images ``(n, h, w)``.
+- ``reconstruct`` (the paper's): an image -> itself. Training data: images ``(n, h, w)``.
 - ``cross_season``: either season's image of a place -> the place's season mean
   ``(a_i + b_i) / 2``. Training data: the aligned pairs of the training places, ``(n, 2, h,
   w)`` (row i holds place i in both seasons). The output may not depend on the season, so a
@@ -154,7 +154,7 @@ def loss(
 ) -> Float[Array, ""]:
     """The training loss of a batch: the mean of its per-example losses (``key``: the
     changes of conditions of augment_contrastive's views)."""
-    if objective == "reconstruct":  # the same mean, summed as the seed's loss always was
+    if objective == "reconstruct":  # the same mean, summed as the paper's loss always was
         return ae.reconstruction_loss(graphdef, params, batch)
     model = nnx.merge(graphdef, params)
     return jnp.mean(per_example_loss(objective, model, batch, temperature, places, radius, key))

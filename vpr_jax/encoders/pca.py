@@ -29,7 +29,7 @@ A removed count's descriptor has two forms with the same cosine similarities:
   ``PCAState.complement``, D - K values, where the fit holds them, as a full solve does
   below the numerical rank). The features ``[k:]`` of ``suffix_descriptors``
   are the k-removed descriptor, so one matching pass scores every k (``starts=ks``);
-- ``output="pixels"``: the descriptor in pixel space, as the seed back-projected it.
+- ``output="pixels"``: the descriptor in pixel space, as the paper back-projected it.
 """
 
 from __future__ import annotations

@@ -35,7 +35,6 @@ from vpr_jax.methods.contract import (
     TrainingSet,
     Validation,
 )
-from vpr_jax.methods.pca import shared
 from vpr_jax.methods.training import Fit, Model, fit_model
 
 INPUTS = ("pixels", "residual")  # what the model sees: <method>.input
@@ -55,7 +54,7 @@ class TrainingSettings:
     learning_rate: float | None = None
     optimizer: str | None = None  # adam | adamw | sgd
     patience: int | None = None  # epochs without a better validation recall@1
-    augment: Any = None  # true (the seed's), false, place (train.augment=auto: the axis)
+    augment: Any = None  # true (the paper's), false, place (train.augment=auto: the axis)
     temperature: float | None = None  # the contrastive objective's
     contrastive_radius: int | None = None  # the contrastive objective's route mask
     start_decay: float | None = None  # the pull towards the starting weights (L2-SP)
@@ -121,13 +120,13 @@ def check_common(group: str, settings: Any) -> None:
 
 
 def without_aligned_places(group: str, settings: Any, training: TrainingSet, log) -> Any:
-    """On data without aligned training places the paired objectives give way (the seed's
+    """On data without aligned training places the paired objectives give way (the paper's
     ``reconstruct`` stays) and the lda start gives way to the whitened PCA start (the
     nearest that needs no alignment, with a note); asked for by name, they are refused."""
     if training.aligned:
         return settings
     if settings.init == "lda":
-        if "init" in training.asked:
+        if "init" in training.given:
             raise UserError(
                 f"{group}.init=lda needs aligned training places, which the data do not have: "
                 "set data.train_source and data.train_root to an aligned route to learn from, "
@@ -136,7 +135,7 @@ def without_aligned_places(group: str, settings: Any, training: TrainingSet, log
         log(f"note: {group}.init=lda needs aligned training places: {group} starts at whitened_pca")
         settings = dataclasses.replace(settings, init="whitened_pca")
     paired = [o for o in settings.objective if o in objectives.PAIRED]
-    if paired and "objective" in training.asked:
+    if paired and "objective" in training.given:
         raise UserError(
             f"{group}.objective={','.join(paired)} needs aligned training places, which the "
             "data do not have: set data.train_source and data.train_root to an aligned route "
@@ -154,12 +153,12 @@ def check(group: str, settings: Any, training: TrainingSet, log) -> Any:
     settings = without_aligned_places(group, settings, training, log)
     if settings.input == "residual":
         k, limit = settings.residual_pcs, training.pca_limit
-        if k >= limit or k > training.pca_components:
+        if k >= limit:
             raise UserError(
-                f"{group}.residual_pcs={k} removes more components than the pair's PCA fit "
-                f"holds ({min(limit - 1, training.pca_components)}): use a smaller count, or "
-                f"set {shared.fix}"
+                f"{group}.residual_pcs={k} leaves no component: PCA of {training.n_images} "
+                f"training images has {limit}, so use a smaller count"
             )
+        training.check_pca_components(group, k)
     per_example = max(objectives.examples_per_image(o) for o in settings.objective)
     step = training.devices * per_example
     if settings.batch_size % step:
@@ -240,7 +239,6 @@ def report(
         basis=basis,
         basis_name="hidden_units",
         kept_epoch=kept,
-        epochs_trained=int(state.epochs),
         start=start_name(settings["init"], units),
         start_state=None
         if state.start_params is None

@@ -50,12 +50,16 @@ class NotScored(Exception):
 
 
 class Report(NamedTuple):
-    """What a fit found beyond its state: results.csv's fit columns, the run log, the
-    TensorBoard run's basis images."""
+    """What a fit found beyond its state: results.csv's fit columns (``REPORT_COLUMNS``,
+    carried whole into each row), the run log's warning, the TensorBoard run's basis
+    images."""
 
     n_iter: int = 0  # iterations of an iterative fit (epochs when trained); 0: closed form
     converged: bool = True  # False: an iterative fit stopped at its limit
     stopped_early: bool = False  # training ended before its last epoch
+    kept_epoch: int | None = None  # a trained fit: the epoch whose weights it kept (0: its
+    # start, untouched by training); None: the fit does not train
+    start: str = ""  # a trained fit: what it started from, e.g. "lda in 256 directions"
     fit_seconds: float | None = None  # its own count (training over every session); None:
     # the runner's clock around fit
     warning: str | None = None  # one line for the run log
@@ -63,12 +67,17 @@ class Report(NamedTuple):
     basis_name: str = "basis"  # its TensorBoard tag: basis/<basis_name>
     validation: bool = True  # False: the state cannot describe the validation places (NaN
     # validation scores: nothing is chosen on them)
-    kept_epoch: int | None = None  # a trained fit: the epoch whose weights it kept (0: its
-    # start, untouched by training); None: the fit does not train
-    epochs_trained: int | None = None  # a trained fit: the epochs it trained
-    start: str = ""  # a trained fit: what it started from, e.g. "lda in 256 directions"
     start_state: Any = None  # a trained fit that kept a later epoch: its start as a state
     # ``encode`` takes, scored on the same queries (results.md's trained-against-start)
+
+    @property
+    def epochs_trained(self) -> int | None:
+        """A trained fit's epochs (its ``n_iter``); None for a fit that does not train."""
+        return None if self.kept_epoch is None else self.n_iter
+
+
+# What of a report results.csv holds, each a column of that name (outputs.results).
+REPORT_COLUMNS = ("n_iter", "converged", "stopped_early", "kept_epoch", "epochs_trained", "start")
 
 
 class TrainingSet(NamedTuple):
@@ -80,7 +89,6 @@ class TrainingSet(NamedTuple):
     aligned: bool  # whether the pair has aligned training places
     swept: dict[str, tuple]  # the values of each of the method's settings given as a list
     given: frozenset[str]  # the method's settings named on the command line
-    asked: frozenset[str]  # ... or by a preset that names its data (what it asks for by name)
     pca_components: int = 0  # components the pair's shared PCA fit holds
     devices: int = 1  # devices a training batch is split over
 
@@ -88,6 +96,24 @@ class TrainingSet(NamedTuple):
     def pca_limit(self) -> int:
         """Principal components of the training images: min(n - 1, pixels)."""
         return min(self.n_images - 1, self.n_pixels)
+
+    def check_pca_components(self, method: str, need: int) -> None:
+        """UserError when ``method`` needs more leading components of the pair's shared PCA
+        fit than it holds."""
+        if need > self.pca_components:
+            raise UserError(
+                f"method {method} needs {need} components of the pair's PCA fit, which holds "
+                f"{self.pca_components}: set pca.solver=covariance (every component), or a "
+                "larger pca.subspace_components"
+            )
+
+
+def _no_axes(settings: Any) -> dict[str, str]:
+    return {}
+
+
+def _no_needs(settings: Any) -> tuple[str, ...]:
+    return ()
 
 
 class Method(NamedTuple):
@@ -97,15 +123,21 @@ class Method(NamedTuple):
     encode: Callable[..., Any]
     settings: type | None = None  # a frozen dataclass: names, defaults and checks of the
     # settings; None: any keyword settings (a user's plugin.<name>.*), unchecked
-    axes: dict[str, str] | Callable[[Any], dict[str, str]] = {}  # setting -> SERVED,
-    # SUFFIX or ROWS (a callable: of the settings)
-    needs: tuple[str, ...] | Callable[[Any], tuple[str, ...]] = ()  # of NEEDS (a callable:
-    # of the settings)
+    axes: Callable[[Any], dict[str, str]] = _no_axes  # settings -> {setting: SERVED,
+    # SUFFIX or ROWS}; given as the dict, ``as_method`` makes it this function
+    needs: Callable[[Any], tuple[str, ...]] = _no_needs  # settings -> names of NEEDS; given
+    # as the tuple, ``as_method`` makes it this function
     random: bool = True  # fit draws from its key: fitted once per seed of ``seeds``
     check: Callable[[Any, TrainingSet, Callable], Any] | None = None  # (settings, training
     # set, log) -> the settings fitted to it (notes in the log), None to leave this
     # combination out (with a note), or UserError
     report: Callable[[Any, dict], Report] | None = None  # (state, this cell's settings)
+
+    def needs_alignment(self, settings: Any) -> bool:
+        return ALIGNED in self.needs(settings)
+
+    def reported(self, state: Any, settings: dict) -> Report:
+        return self.report(state, settings) if self.report is not None else Report()
 
 
 class PCAFit(NamedTuple):
@@ -113,21 +145,6 @@ class PCAFit(NamedTuple):
 
     state: Any  # vpr_jax.encoders.pca.PCAState
     seconds: float
-    asked: int = 0  # components asked for; the state holds fewer where the training
-    # images' numerical rank is lower (vpr_jax.encoders.pca.numerical_rank)
-
-
-class SharedFit(NamedTuple):
-    """A fit a pair shares with every method that needs it, declared by the method that
-    offers it (``vpr_jax.method_table.OFFERS``). It holds a count of components that
-    depends on the data and its own settings only, never on which methods use it (each
-    takes the leading ones it needs): a method's numbers do not depend on what else is in
-    ``methods``, and its shapes (so its compiled code) not on its own settings."""
-
-    components: Callable[[Any, int, int], int]  # (settings, n_images, n_pixels) -> the
-    # components the fit holds
-    fit: Callable[..., Any]  # (train, n_components, settings, mesh, seed) -> its state
-    fix: str  # how a user gets more components than it holds (an error's advice)
 
 
 class Validation(NamedTuple):
@@ -155,21 +172,6 @@ class Training(NamedTuple):
     checkpoint_every_s: float  # seconds between an epoch's checkpoints (train.*)
 
 
-# The declarations of the contract before 2026-12-05 and what replaces each.
-_REPLACED = {
-    "serves": "axes={'<setting>': 'served'}",
-    "suffix": "axes={'<setting>': 'suffix'}",
-    "sweeps": "a removed_pcs setting (the sweep hands removed_pcs to methods that have one)",
-    "variants": "axes={'<setting>': 'rows'}",
-    "uses": "needs=(...)",
-    "needs_alignment": "needs=('aligned', ...)",
-    "most_removed": "check (return None to leave a combination out)",
-    "pca_components": "check (training.pca_components says what the shared fit holds)",
-    "check_devices": "check (training.devices)",
-    "shared_fit": "a SharedFit in the offering method's module, named in method_table.OFFERS",
-}
-
-
 def _names(value: Any, allowed: tuple[str, ...], what: str, ref: str) -> tuple[str, ...]:
     names = (value,) if isinstance(value, str) else tuple(value)
     if not all(isinstance(n, str) for n in names) or set(names) - set(allowed):
@@ -191,42 +193,26 @@ def _axes(value: Any, ref: str) -> dict[str, str]:
 
 
 def as_method(obj: Any, ref: str) -> Method:
-    """``obj``'s fit, encode and declarations as a ``Method`` (absent ones: the defaults);
-    UserError naming ``ref`` when they cannot serve."""
-    if isinstance(obj, Method):
-        return obj
+    """``obj``'s fit, encode and declarations as a ``Method`` (absent ones: the defaults; a
+    dict of ``axes`` or a tuple of ``needs``, checked now, as the function of the settings
+    the runner reads: a declaration has that one form past here); UserError naming ``ref``
+    when they cannot serve."""
     missing = [a for a in ("fit", "encode") if not callable(getattr(obj, a, None))]
     if missing:
         raise UserError(
             f"method {ref} has no callable {' or '.join(missing)}: give it fit(train, "
             "aligned, key) -> state and encode(state, images) -> (n, d) (docs/methods.md)"
         )
-    old = [name for name in _REPLACED if hasattr(obj, name)]
-    if old:
-        raise UserError(
-            f"method {ref} declares {old[0]}, which the contract no longer has: use "
-            f"{_REPLACED[old[0]]} (docs/methods.md, 'Your own method')"
-        )
-    method = Method(**{f: getattr(obj, f) for f in Method._fields if hasattr(obj, f)})
-    return method._replace(
-        axes=method.axes if callable(method.axes) else _axes(method.axes, ref),
-        needs=method.needs if callable(method.needs) else _names(method.needs, NEEDS, "needs", ref),
+    method = (
+        obj
+        if isinstance(obj, Method)
+        else Method(**{f: getattr(obj, f) for f in Method._fields if hasattr(obj, f)})
     )
-
-
-def axes_of(method: Method, settings: Any) -> dict[str, str]:
-    """How the method's settings vary, for these settings."""
-    return method.axes(settings) if callable(method.axes) else method.axes
-
-
-def needs_of(method: Method, settings: Any) -> tuple[str, ...]:
-    """What the method needs, for these settings."""
-    return method.needs(settings) if callable(method.needs) else method.needs
-
-
-def needs_alignment(method: Method, settings: Any) -> bool:
-    return ALIGNED in needs_of(method, settings)
-
-
-def report_of(method: Method, state: Any, settings: dict) -> Report:
-    return method.report(state, settings) if method.report is not None else Report()
+    axes, needs = method.axes, method.needs
+    if not callable(axes):
+        checked_axes = _axes(axes, ref)
+        axes = lambda settings: checked_axes  # noqa: E731
+    if not callable(needs):
+        checked_needs = _names(needs, NEEDS, "needs", ref)
+        needs = lambda settings: checked_needs  # noqa: E731
+    return method._replace(axes=axes, needs=needs)

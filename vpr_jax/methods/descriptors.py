@@ -15,6 +15,7 @@ from jaxtyping import Array, Float
 
 from vpr_jax import host_arrays
 from vpr_jax.data.pair import PairData
+from vpr_jax.methods.contract import Report
 
 _EPS = 1e-12
 
@@ -22,8 +23,7 @@ _EPS = 1e-12
 class Part(NamedTuple):
     """A cell's part of a fit's descriptors: its settings and its run."""
 
-    settings: dict  # the cell's swept settings, by name ({} none)
-    setting: str  # their label less the sweep's keys: results.csv's setting ("" none)
+    settings: dict  # the cell's swept settings, by name ({} none): results.csv's settings
     run: str  # its run's name less the pair and ds: fae_cross_season, ica_n_components=64_k005
 
 
@@ -42,16 +42,11 @@ class Descriptors(NamedTuple):
     val_query: jax.Array | None  # outside descriptors that do not cover them, NaN scores)
     fit_seconds: float
     encode_ms_per_image: float  # warm (compiled) encoding time
-    n_iter: int = 0  # iterations of an iterative fit (0: closed form; epochs when trained)
-    converged: bool = True  # False: an iterative fit stopped at its limit
-    stopped_early: bool = False  # training ended before its last epoch
-    kept_epoch: int | None = None  # a trained fit's kept epoch (0: its start); None: untrained
-    epochs_trained: int | None = None
-    start: str = ""  # a trained fit's start, in words
+    report: Report = Report()  # what the fit found (the first part's: its columns)
     n_train: int | None = None  # images the fit learnt from (None: the pair's all)
     basis: tuple[np.ndarray | None, ...] = ()  # per part: (m, 32, 64) images of what the
-    basis_name: str = "basis"  # method removed or learned; TensorBoard tag basis/<name>
-    warning: str | None = None  # one line for the run log (non-convergence, degenerate)
+    # method removed or learned (TensorBoard tag basis/<report.basis_name>)
+    warning: str | None = None  # one line for the run log (the report's, degenerate)
     start_db: jax.Array | None = None  # a trained fit that kept a later epoch: its start's
     start_query: jax.Array | None = None  # descriptors (one part), for the paired comparison
 

@@ -19,7 +19,7 @@ class Settings(autoencoder.TrainingSettings):
     """``fae.*``: its own and its training settings (``train.*``'s where not given)."""
 
     hidden: int = 256  # code length: the place descriptor
-    # One cell per objective: reconstruct (the seed's), cross_season and/or contrastive
+    # One cell per objective: reconstruct (the paper's), cross_season and/or contrastive
     # (see vpr_jax.encoders.objectives); one value or a list.
     objective: tuple[str, ...] = ("reconstruct", "cross_season")
     # pixels: the images; residual: the images less the pair's leading residual_pcs
@@ -34,7 +34,7 @@ class Settings(autoencoder.TrainingSettings):
     # whitening of its inputs in hidden // 2 components (the lda method's descriptor; needs
     # aligned training places).
     init: str = "random"
-    # Subtracted from every pixel before the hidden layer; 0 is the seed's layer, on which
+    # Subtracted from every pixel before the hidden layer; 0 is the paper's layer, on which
     # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
     input_centre: float = 0.5
     standardise: bool = True  # each image to zero mean, std 1/4 instead (input_centre unused)
@@ -54,7 +54,7 @@ class Settings(autoencoder.TrainingSettings):
             (
                 0 <= self.input_centre <= 1,
                 f"fae.input_centre={self.input_centre} is not a grey level in [0, 1]: use "
-                "0.5 (mid-grey) or 0 (the seed's layer)",
+                "0.5 (mid-grey) or 0 (the paper's layer)",
             ),
         )
         for ok, message in checks:

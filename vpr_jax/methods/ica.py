@@ -1,4 +1,4 @@
-"""ica: symmetric FastICA (the seed's headline method) on the images whitened with the pair's
+"""ica: symmetric FastICA (the paper's headline method) on the images whitened with the pair's
 shared PCA fit after removing its first k components, a fit per k of ``removed_pcs``."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 from vpr_jax.encoders import ica
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, NotScored, PCAFit, Report, TrainingSet
-from vpr_jax.methods.pca import removed_count_fits, shared
+from vpr_jax.methods.pca import removed_count_fits
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,12 +100,7 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings | None:
             f"but PCA of {training.n_images} training images has {limit}: use "
             f"ica.n_components <= {limit - top}, ica.n_components=all, or smaller removed_pcs"
         )
-    need = limit if n == "all" else k + n
-    if need > training.pca_components:
-        raise UserError(
-            f"method ica needs {need} components of the pair's PCA fit, which holds "
-            f"{training.pca_components}: set {shared.fix}"
-        )
+    training.check_pca_components("ica", limit if n == "all" else k + n)
     return settings
 
 

@@ -9,7 +9,6 @@ import dataclasses
 from vpr_jax.encoders import lda
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, PCAFit, Report, TrainingSet
-from vpr_jax.methods.pca import shared
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,12 +48,7 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings:
             f"note: lda.n_components={settings.n_components} exceeds the {limit} principal "
             f"components of {training.n_images} training images: lda whitens in all {limit}"
         )
-    need = min(settings.n_components, limit)
-    if need > training.pca_components:
-        raise UserError(
-            f"method lda needs {need} components of the pair's PCA fit, which holds "
-            f"{training.pca_components}: set {shared.fix}"
-        )
+    training.check_pca_components("lda", min(settings.n_components, limit))
     return settings
 
 

@@ -38,7 +38,10 @@ def _preprocess(description: dict) -> Callable[[jax.Array], jax.Array]:
 def _served(description: dict, asked: dict, folder: Path) -> dict:
     """The served values to encode with: the ones chosen on the validation places (or the
     first of each), each of ``asked`` where given (one the fit served)."""
-    serves = description.get("serves", {})
+    serves: dict[str, list] = {}
+    for cell in description.get("cells", []):
+        for name, value in cell.get("served", {}).items():
+            serves.setdefault(name, []).append(value)
     chosen = {name: values[0] for name, values in serves.items()}
     chosen.update(description.get("chosen", {}))
     for name, value in asked.items():

@@ -1,9 +1,10 @@
 """pca: PCA change removal (Lowry & Milford): the first k principal components of both
 seasons' training images removed, for every k of ``removed_pcs`` from one fit.
 
-Its fit is the pair's shared PCA fit (``shared``, named in ``method_table.OFFERS``), which
-every method that ``needs`` ``pca_fit`` receives too (ica whitens with it, lda whitens
-inside it, a residual-input auto-encoder removes its leading components). The shared fit
+Its fit is the pair's shared PCA fit (``shared_fit``, made by the runner with pca's
+settings, ``experiments.fitting``), which every method that ``needs`` ``pca_fit`` receives
+too (ica whitens with it, lda whitens inside it, a residual-input auto-encoder removes its
+leading components). The shared fit
 solves every component exactly (``covariance`` or ``gram``), or, where that is too large
 (``FULL_SOLVE_LIMIT``) or ``pca.solver=subspace`` asks, a fixed ``pca.subspace_components``;
 every user gets that whole fit and takes the leading components it needs, so no method's
@@ -13,7 +14,7 @@ cells get a shared fit per value; the methods that need it, the first value's.
 The descriptor of count k is the suffix ``[k:]`` of ``pca.suffix_descriptors`` (the
 coefficients on every component of the fit, then the residual; ``vpr_jax.encoders.pca``),
 so one encoding and one matching pass score every count; ``pca.output=pixels`` encodes
-each count in pixel space instead, as the seed did (the same similarities, slower).
+each count in pixel space instead, as the paper did (the same similarities, slower).
 """
 
 from __future__ import annotations
@@ -35,7 +36,6 @@ from vpr_jax.methods.contract import (
     NotScored,
     PCAFit,
     Report,
-    SharedFit,
     TrainingSet,
 )
 
@@ -47,7 +47,7 @@ class Settings:
     """``pca.*``: how the pair's PCA fit is solved, and the descriptor's form."""
 
     solver: str = "auto"  # auto | covariance | gram | subspace (vpr_jax.encoders.pca)
-    output: str = "coefficients"  # coefficients | pixels (the seed's back-projection)
+    output: str = "coefficients"  # coefficients | pixels (the paper's back-projection)
     subspace_components: int = 512  # what the subspace solver fits, whichever methods use it
     removed_pcs: int = 0  # leading components removed (the sweep's removed_pcs: one fit)
     # 0: the change-removal descriptor; c > 0: after the removed ones, c components each
@@ -184,20 +184,11 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings | None:
     below = limit - max(settings.whiten - 1, 0)
     if not removed_count_fits("pca", k, below, why, training, log):
         return None
-    held = shared_components(settings, training.n_images, training.n_pixels)
-    if max(1, k + settings.whiten) > held:
-        raise UserError(
-            f"method pca needs {k} components of the pair's PCA fit, which holds {held}: "
-            f"set {shared.fix}"
-        )
+    own = shared_components(settings, training.n_images, training.n_pixels)  # its own fit
+    training._replace(pca_components=own).check_pca_components("pca", max(1, k + settings.whiten))
     return settings
 
 
-shared = SharedFit(
-    components=shared_components,
-    fit=shared_fit,
-    fix="pca.solver=covariance (every component), or a larger pca.subspace_components",
-)
 method = Method(
     fit=fit,
     encode=encode,

@@ -23,7 +23,7 @@ from vpr_jax.config import TRAIN_BOOKKEEPING, SweepConfig, plain, to_dict
 from vpr_jax.errors import UserError
 from vpr_jax.files import lock_folder
 from vpr_jax.method_table import NAMES
-from vpr_jax.outputs.results import read_results
+from vpr_jax.outputs.results import SWEEP_KEYS, read_results
 
 # Keys that may differ between runs sharing a logdir: they add cells or change presentation,
 # or where and in what blocks the same numbers are computed (up to float rounding), never
@@ -32,19 +32,19 @@ EXTENDABLE_KEYS = (
     "preset",
     "season_pairs",
     "methods",
-    "removed_pcs",
+    *SWEEP_KEYS,
     "seeds",
     "logdir",
     "tb",
     "matching",
     "mesh",
 )
-# Keys inside a group that add cells, like removed_pcs: the ds axis. The group's other keys
+# Keys inside a group that add cells, like the sweep keys: the ds axis. The group's other keys
 # change the numbers of its cells.
 AXIS_KEYS = {"sequence": ("enabled", "ds"), "split": ("train_places",)}
 # The layout of a logdir (config.yaml, results.csv's columns, the runs' files): written as
 # config.yaml's ``format``; a logdir of another format is refused, never read or extended.
-FORMAT = 3  # 3: results.csv's settings column, cells named by their runs (2026-12-05)
+FORMAT = 3
 
 
 ENCODERS_CSV = "encoders.csv"  # logdir/encoders.csv: every saved encoder and its folder
@@ -53,7 +53,7 @@ LISTING = (
     "method",
     "objective",
     "setting",
-    "cell",  # every swept setting of the chosen cell: removed_pcs=20, n_components=64 ...
+    "cell",  # every swept setting of the chosen cell, as name=value
     "seed",
     "kept_epoch",  # a trained model: the epoch kept (0: its start, untouched by training)
     "val_recall_at_1",

@@ -42,7 +42,7 @@ def _rank(row: ResultRow) -> tuple:
 
 def compare_labels(rows: list[ResultRow], label=label_of) -> list[str]:
     """Every label of ``rows`` once, in the method table's order (users' methods and outside
-    sets after the built-in ones, by name; the seed's objective first)."""
+    sets after the built-in ones, by name; the paper's objective first)."""
     return list(dict.fromkeys(label(r) for r in sorted(rows, key=_rank)))
 
 

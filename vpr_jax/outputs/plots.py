@@ -1,4 +1,4 @@
-"""Sweep figures, like the seed's Figs 7-12: PR curves per pair and fractions of correct
+"""Sweep figures, like the paper's Figs 7-12: PR curves per pair and fractions of correct
 matches (at the sweep's shortest sequence length, single images unless told otherwise), and
 recall@1 against the sequence length ds. Built from results.csv rows and each cell's saved
 curve, so a resumed sweep draws every cell, not only those it computed this time. Each

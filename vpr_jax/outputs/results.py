@@ -15,6 +15,7 @@ import io
 import json
 import math
 import re
+import typing
 from pathlib import Path
 from typing import NamedTuple
 
@@ -23,7 +24,33 @@ import numpy as np
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
 from vpr_jax.files import atomic_write_text
 from vpr_jax.method_table import model_label
+from vpr_jax.methods.contract import REPORT_COLUMNS, Report
 from vpr_jax.methods.settings import label
+
+
+class SweepKey(NamedTuple):
+    """How a value of a sweep key is written in names: a run's or folder's suffix, a label
+    in the run log and results.md."""
+
+    suffix: str
+    label: str
+
+
+# The sweep's own keys a method takes as a setting of the same name (the removed count
+# reaches pca, ica and diff_pca), each with a results.csv column.
+SWEEP_KEYS = {"removed_pcs": SweepKey(suffix="_k{:03d}", label="k={}")}
+
+
+def _column_type(name: str) -> type:
+    """A report field's column type (a flag is written 0 or 1)."""
+    hints = typing.get_type_hints(Report)
+    kind = (
+        hints[name]
+        if name in hints
+        else typing.get_type_hints(getattr(Report, name).fget)["return"]
+    )
+    return int if kind is bool else kind
+
 
 # The columns of results.csv, in order, with their types: one row per finished cell.
 ResultRow = NamedTuple(
@@ -35,8 +62,9 @@ ResultRow = NamedTuple(
         ("method", str),
         ("objective", str),  # the auto-encoders' training objective; empty for other methods
         ("setting", str),  # the method's swept settings, e.g. n_components=64; empty: none
-        ("settings", str),  # every swept setting of the cell, JSON: {"removed_pcs": 5}
-        ("removed_pcs", int),  # the sweep's removed_pcs: 0 for a method without the setting
+        ("settings", str),  # every swept setting of the cell, JSON; the two columns around
+        # it are made from it (``settings_columns``)
+        *((key, int) for key in SWEEP_KEYS),  # each sweep key's value (0: not a setting)
         ("ds", int),  # sequence length; 1 = single images
         ("n_train", int),  # images the encoder was fitted on, both seasons
         ("n_test", int),  # queries
@@ -56,13 +84,9 @@ ResultRow = NamedTuple(
         # x ds (every seed's row of it)
         ("fit_seconds", float),
         ("encode_ms_per_image", float),
-        ("n_iter", int),  # iterations of an iterative fit (epochs for the auto-encoders)
-        ("converged", int),  # ICA: 0 when it stopped at ica.max_iter; 1 for the others
-        ("stopped_early", int),  # auto-encoders: 1 when early stopping ended the training
-        ("kept_epoch", int | None),  # a trained method: the epoch whose weights it kept (0:
-        # its start, untouched by training); empty for a method that does not train
-        ("epochs_trained", int | None),  # a trained method: the epochs it trained
-        ("start", str),  # a trained method: what it started from ("lda in 256 directions")
+        *((name, _column_type(name)) for name in REPORT_COLUMNS),  # what the fit reported
+        # (methods.contract.Report): n_iter, converged, stopped_early, kept_epoch (0: the
+        # start, untouched by training), epochs_trained, start; docs/metrics.md says each
         ("seed", int),  # the fit's seed (seeds); the data's (seed) for methods that draw none
         ("run", str),  # the cell's TensorBoard run, relative to the logdir
     ],
@@ -81,24 +105,37 @@ COLUMN_TYPES: dict[str, type] = {
 TIMING_NAMES = ("fit_seconds", "encode_ms_per_image")
 
 
-# The sweep's own keys a method takes as a setting of the same name (``removed_pcs``
-# reaches pca, ica and diff_pca), each with a results.csv column and how a value ends the
-# names of the method's runs and folders (``pca_k005``).
-SWEEP_KEYS = {"removed_pcs": "_k{:03d}"}
-
-
 def cell_name(method: str, objective: str, swept, seed: int | None = None) -> str:
     """A run's or a fitted state's name from its swept settings ((name, value) pairs in
     the method's order): their label, then the sweep's keys as their suffixes
     (``ica_n_components=64_seed1_k005``)."""
     plain = tuple((n, v) for n, v in swept if n not in SWEEP_KEYS)
-    suffix = "".join(SWEEP_KEYS[n].format(v) for n, v in swept if n in SWEEP_KEYS)
+    suffix = "".join(SWEEP_KEYS[n].suffix.format(v) for n, v in swept if n in SWEEP_KEYS)
     return model_label(method, objective, label(plain), seed) + suffix
 
 
-def sweep_columns(settings: dict) -> dict[str, int]:
-    """A cell's results.csv columns of the sweep's keys (0 for a method without one)."""
-    return {key: int(settings.get(key, 0)) for key in SWEEP_KEYS}
+def settings_columns(settings: dict) -> dict:
+    """A cell's results.csv columns of its swept settings (``settings``, by name): all of
+    them as JSON, their label less the sweep's keys, and each sweep key's value (0 for a
+    cell without it)."""
+    return {
+        "setting": label(tuple((n, v) for n, v in settings.items() if n not in SWEEP_KEYS)),
+        "settings": json.dumps(settings),
+        **{key: int(settings.get(key, 0)) for key in SWEEP_KEYS},
+    }
+
+
+def settings_hparams(settings: dict) -> dict:
+    """A cell's TensorBoard hparams of its swept settings: their label less the sweep's
+    keys, and each sweep key's value (a float: an hparam's axis)."""
+    columns = settings_columns(settings)
+    return {"setting": columns["setting"], **{key: float(columns[key]) for key in SWEEP_KEYS}}
+
+
+def report_columns(report: Report) -> dict:
+    """A fit's report as its results.csv columns."""
+    values = {name: getattr(report, name) for name in REPORT_COLUMNS}
+    return {k: int(v) if isinstance(v, bool) else v for k, v in values.items()}
 
 
 def settings_of(row: ResultRow) -> dict:
@@ -106,18 +143,10 @@ def settings_of(row: ResultRow) -> dict:
     return json.loads(row.settings) if row.settings else {}
 
 
-SWEEP_LABELS = {"removed_pcs": "k={}"}  # how a cell's line in the run log names each
-
-
 def sweep_labels(row: ResultRow) -> list[str]:
     """The sweep's keys the row's cell has, as the run log and results.md name them (k=5)."""
     values = settings_of(row)
-    return [SWEEP_LABELS[k].format(values[k]) for k in SWEEP_KEYS if k in values]
-
-
-def has_setting(row: ResultRow, name: str) -> bool:
-    """Whether the row's cell sweeps ``name`` (pca's removed_pcs; fae's learning_rate)."""
-    return name in settings_of(row)
+    return [SWEEP_KEYS[k].label.format(values[k]) for k in SWEEP_KEYS if k in values]
 
 
 def cell_key(row: ResultRow) -> str:
@@ -335,7 +364,7 @@ def best_objectives(rows: list[ResultRow]) -> set[str]:
 def baseline_method(
     rows: list[ResultRow], baseline: str, outside: tuple[str, ...] = ()
 ) -> str | None:
-    """What results.md's paired differences are to: the sweep's ``baseline`` (the seed's
+    """What results.md's paired differences are to: the sweep's ``baseline`` (the paper's
     PCA by default) when the sweep ran it, else the first set of outside descriptors
     (``outside``, in the order given) that has rows, else None (no differences)."""
     methods = {r.method for r in rows}

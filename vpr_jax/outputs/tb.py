@@ -190,7 +190,7 @@ def write_pair_summary(
     run_dir: Path, cells: list[SummaryCell], *, pr_convention: str, n_thresholds: int
 ) -> None:
     """A season pair's summary run: each method's selected cell as tags of one run, so
-    TensorBoard shows the comparison (the seed's Figs 7-12) without ticking 70 runs.
+    TensorBoard shows the comparison (the paper's Figs 7-12) without ticking 70 runs.
 
     - PR CURVES: ``pr_curve/<label>``, one chart per method (the pair's own curve in it);
     - SCALARS: ``compare/<metric>`` for the metrics in ``COMPARED`` with method i at step i,
