@@ -231,6 +231,14 @@ def _how_it_was_fitted(desc: Descriptors) -> dict:
     }
 
 
+class CellMatches(NamedTuple):
+    """A cell's top-K matches (``match``)."""
+
+    test: TopK  # the test queries'
+    val: TopK | None  # the validation queries' (None: the descriptors have none, NaN scores)
+    start: TopK | None = None  # a trained model's start's, on the same test queries
+
+
 def save_cell(
     logdir: Path,
     cfg: SweepConfig,
@@ -238,19 +246,17 @@ def save_cell(
     desc: Descriptors,
     cell: int,
     ds: int,
-    top: TopK,
-    val_top: TopK | None,
-    start_top: TopK | None = None,
+    matches: CellMatches,
 ) -> ResultRow:
-    """Evaluate the matches of ``desc``'s ``cell``-th part (``top``: the test queries',
-    ``val_top``: the validation queries', None when the descriptors have none: NaN
-    validation scores), write its TensorBoard run, then its results.csv row (the row last:
-    a run without a row is redone by a resumed sweep). Returns the row."""
+    """Evaluate the matches of ``desc``'s ``cell``-th part, write its TensorBoard run, then
+    its results.csv row (the row last: a run without a row is redone by a resumed sweep).
+    Returns the row."""
     part: Part = desc.parts[cell]
     name = run_name(pair.name, part.run, ds)
     shutil.rmtree(logdir / name, ignore_errors=True)  # left by a crash before its row
+    top = matches.test
     ev = evaluate_matches(*top, pair.truth, pr_convention=cfg.pr_convention)
-    val = _validation_scores(cfg, pair, val_top)
+    val = _validation_scores(cfg, pair, matches.val)
     ci = cell_intervals(
         ev.best_scores,
         ev.best_correct,
@@ -261,8 +267,8 @@ def save_cell(
         pr_convention=cfg.pr_convention,
     )
     start = None
-    if start_top is not None:  # a trained model's start, on the same queries
-        start = evaluate_matches(*start_top, pair.truth, pr_convention=cfg.pr_convention)
+    if matches.start is not None:  # a trained model's start, on the same queries
+        start = evaluate_matches(*matches.start, pair.truth, pr_convention=cfg.pr_convention)
     _write_run(logdir, name, cfg, pair, desc, cell, ds, top, ev, start)
     row = ResultRow(
         **_what_was_measured(pair, desc),

@@ -18,7 +18,15 @@ from typing import NamedTuple
 import jax
 from jax.sharding import Mesh
 
-from experiments.cells import INCOMPLETE, log_cell, match, run_name, save_cell, validation_scores
+from experiments.cells import (
+    INCOMPLETE,
+    CellMatches,
+    log_cell,
+    match,
+    run_name,
+    save_cell,
+    validation_scores,
+)
 from experiments.fitting import PairRun, describe_fit
 from experiments.plan import Plan
 from experiments.report import COMPARE, SUMMARY, run_steps, write_report
@@ -255,16 +263,7 @@ def _save_descriptors(
             if desc.start_query is not None:  # a trained model's start, same queries
                 of_start = desc._replace(db=desc.start_db, query=desc.start_query)
                 start = match(of_start, data, ds, (desc.starts[cell],), cfg, mesh)[0]
-            row = save_cell(
-                out,
-                cfg,
-                data,
-                desc,
-                cell,
-                ds,
-                matches(cell, ds, "test"),
-                matches(cell, ds, "val"),
-                start_top=start,
-            )
+            found = CellMatches(matches(cell, ds, "test"), matches(cell, ds, "val"), start)
+            row = save_cell(out, cfg, data, desc, cell, ds, found)
             yield row, warning
             warning = None

@@ -16,7 +16,8 @@ from vpr_jax.shapes import IMAGE_SHAPE
 
 # fast: 2x2 pixel blocks to channels (no convolution at full resolution), two 3x3 levels of
 # 24 and 48 channels, a 4x8x32 = 1,024-value code. calc: the CAE sized like CALC's encoder
-# (5x5x64, 4x4x128, a 8x16x8 = 1,024-value code), far slower to train on a CPU (docs/speed.md, "Auto-encoders").
+# (5x5x64, 4x4x128, a 8x16x8 = 1,024-value code), far slower to train on a CPU
+# (docs/speed.md, "Auto-encoders").
 MODELS = {
     "fast": {
         "channels": (24, 48),
