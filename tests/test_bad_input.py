@@ -169,7 +169,7 @@ CONFIG_CASES = {
     "pair of one season": (["season_pairs=fall-fall"], ["fall-fall"]),
     "pair outside seasons": (["season_pairs=summer-winter"], ["winter", "data.seasons"]),
     "negative removed count": (["removed_pcs=[-1,5]"], ["removed_pcs"]),
-    "removed count leaves nothing": ([*SMALL, "removed_pcs=[0,599]"], ["599", "below 499"]),
+    "removed count leaves nothing": ([*SMALL, "removed_pcs=[0,599]"], ["599", "up to 498"]),
     "more ICs than the data allow": (
         [*SMALL, "ica.n_components=590"],
         ["ica.n_components=590", "up to 20", "ica.n_components <= 479"],

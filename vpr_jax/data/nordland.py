@@ -27,6 +27,7 @@ import re
 from collections.abc import Callable, Sequence
 from functools import partial, reduce
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -87,7 +88,7 @@ def read_image_release(root: PathLike, seasons: Sequence[str], **options) -> Rou
         resize=False,
         empty_hint="the 64x32 release names them images-00001.png ...; for other names or "
         "sizes set data.source=folders",
-        **options,
+        options=ReadOptions(**options),
     )
 
 
@@ -105,8 +106,18 @@ def read_folders(root: PathLike, seasons: Sequence[str], **options) -> Route:
         match=_folder_id,
         resize=True,
         empty_hint="put the frames there as .png, .jpg or .jpeg files numbered in their names",
-        **options,
+        options=ReadOptions(**options),
     )
+
+
+class ReadOptions(NamedTuple):
+    """What every reader takes besides its root and seasons (the module docstring)."""
+
+    frame_list: PathLike | None = None
+    frame_step: int = 1
+    frame_range: Sequence[int] | None = None
+    max_pixels: int = MAX_PIXELS
+    log: Log = print
 
 
 def _read_image_folders(
@@ -117,15 +128,12 @@ def _read_image_folders(
     match: Callable[[Path, str], int | None],
     empty_hint: str,
     resize: bool,
-    frame_list: PathLike | None = None,
-    frame_step: int = 1,
-    frame_range: Sequence[int] | None = None,
-    max_pixels: int = MAX_PIXELS,
-    log: Log = print,
+    options: ReadOptions,
 ) -> Route:
     """Index every season folder ({frame id: path}, names ``match`` maps to ids), align the
     seasons, then read only the frames kept."""
     seasons = _check_seasons(seasons)
+    frame_list, frame_step, frame_range, max_pixels, log = options
     _check_step(frame_step)
     root = _check_root(root, "the folder holding " + _folders_hint(seasons))
     files = {}
@@ -154,15 +162,7 @@ def _read_image_folders(
 
 
 def read_videos(
-    root: PathLike,
-    seasons: Sequence[str],
-    *,
-    cache_dir: PathLike | None,
-    frame_list: PathLike | None = None,
-    frame_step: int = 1,
-    frame_range: Sequence[int] | None = None,
-    max_pixels: int = MAX_PIXELS,
-    log: Log = print,
+    root: PathLike, seasons: Sequence[str], *, cache_dir: PathLike | None, **options
 ) -> Route:
     """Season videos in ``root``: the one file whose name contains the season (any case).
 
@@ -173,6 +173,7 @@ def read_videos(
     modification time and the target size, so a second run decodes nothing.
     """
     seasons = _check_seasons(seasons)
+    frame_list, frame_step, frame_range, max_pixels, log = ReadOptions(**options)
     _check_step(frame_step)
     root = _check_root(root, "the folder holding the season videos (e.g. summer.mp4, fall.mp4)")
     videos = {season: find_video(root, season) for season in seasons}

@@ -47,17 +47,8 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings | None:
     why = f"PCA of {training.n_images} training images has {limit} components"
     if not removed_count_fits("diff_pca", k, limit, why, training, log):
         return None
-    if k > changes:
-        if "removed_pcs" in training.given:
-            raise UserError(
-                f"removed_pcs up to {k} for diff_pca, but the season differences of {places} "
-                f"aligned training places span at most {changes} directions: use counts up "
-                f"to {changes}, or leave diff_pca out of methods"
-            )
-        log(
-            f"note: diff_pca removed_pcs={k} left out: {places} aligned places span at "
-            f"most {changes} changes (set removed_pcs to choose)"
-        )
+    why = f"the season differences of {places} aligned training places span {changes} directions"
+    if not removed_count_fits("diff_pca", k, changes + 1, why, training, log):
         return None
     return settings
 

@@ -167,8 +167,8 @@ def removed_count_fits(who: str, k: int, limit: int, why: str, training: Trainin
         return True
     if "removed_pcs" in training.given:
         raise UserError(
-            f"removed_pcs={list(training.swept.get('removed_pcs', (k,)))} leaves no "
-            f"component: {why}, so use counts below {limit}"
+            f"removed_pcs={list(training.swept.get('removed_pcs', (k,)))} is too large for "
+            f"{who}: {why}, so use counts up to {limit - 1}"
         )
     log(f"note: {who} removed_pcs={k} left out: {why} (set removed_pcs to choose)")
     return False
