@@ -181,7 +181,7 @@ def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -
         outside=read_outside_sets(cfg, data.benchmark, log) if data.benchmark is not None else {},
         training_sets=sets,
         pca=pca,
-        identity=identity(cfg),
+        identity=identity(recorded),
         mesh=mesh,
     )
 

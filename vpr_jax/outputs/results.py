@@ -86,7 +86,7 @@ ResultRow = NamedTuple(
         ("encode_ms_per_image", float),
         *((name, _column_type(name)) for name in REPORT_COLUMNS),  # what the fit reported
         # (methods.contract.Report): n_iter, converged, stopped_early, kept_epoch (0: the
-        # start, untouched by training), epochs_trained, start; docs/metrics.md says each
+        # start, untouched by training), epochs_trained, start; docs/guide.md says each
         ("seed", int),  # the fit's seed (seeds); the data's (seed) for methods that draw none
         ("run", str),  # the cell's TensorBoard run, relative to the logdir
     ],
