@@ -420,9 +420,11 @@ def lda_start(
     (``vpr_jax.encoders.lda``) of its own inputs: row i of ``images_a`` and ``images_b`` is
     one training place in two seasons; the within-place scatter is whitened inside the
     leading ``units // 2`` principal components of both seasons' inputs, and each whitened
-    direction becomes a unit and its negative (``linear_start``). A code of this start
-    matches like the lda method's coordinates (in as many components, within the units'
-    clipping)."""
+    direction becomes a unit and its negative (``linear_start``). A code of this start is
+    the lda method's code with ``lda.standardise=true lda.rectify=true`` in ``units // 2``
+    components (the same matches on the dev frames' reporting half, query for query), not
+    lda's plain coordinates: its cosine counts only the coordinates where both images have
+    the same sign (``vpr_jax.methods.rectify``)."""
     a = _model_inputs(graphdef, params, jnp.asarray(images_a, jnp.float32))
     b = _model_inputs(graphdef, params, jnp.asarray(images_b, jnp.float32))
     both = jnp.concatenate([a, b])

@@ -13,6 +13,7 @@ from vpr_jax.encoders import diff_pca, pca
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import SUFFIX, Method, Report, TrainingSet
 from vpr_jax.methods.pca import beyond_rank, removed_count_fits
+from vpr_jax.methods.rectify import rectifiable
 
 
 @dataclasses.dataclass(frozen=True)
@@ -21,6 +22,7 @@ class Settings:
 
     solver: str = "auto"  # auto | covariance | gram | subspace: PCA of the differences
     removed_pcs: int = 0  # leading change directions removed (the sweep's removed_pcs: one fit)
+    rectify: bool = False  # [relu(z), relu(-z)] (vpr_jax.methods.rectify): a fit per value
 
     def __post_init__(self):
         if self.solver not in pca.SOLVERS:
@@ -61,13 +63,15 @@ def _report(state, settings: dict) -> Report:
     return Report(basis=components[:k] if k else None, basis_name="removed_changes")
 
 
-method = Method(
-    fit=fit,
-    encode=encode,
-    settings=Settings,
-    axes={"removed_pcs": SUFFIX},  # one fit and one encoding serve every count
-    needs=("aligned", "mesh"),
-    random=False,
-    check=check,
-    report=_report,
+method = rectifiable(
+    Method(
+        fit=fit,
+        encode=encode,
+        settings=Settings,
+        axes={"removed_pcs": SUFFIX},  # one fit and one encoding serve every count
+        needs=("aligned", "mesh"),
+        random=False,
+        check=check,
+        report=_report,
+    )
 )

@@ -11,6 +11,7 @@ from vpr_jax.encoders import ica
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, NotScored, PCAFit, Report, TrainingSet
 from vpr_jax.methods.pca import removed_count_fits
+from vpr_jax.methods.rectify import rectifiable
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,6 +26,7 @@ class Settings:
     n_init: int = 1  # random initialisations run at once; the best negentropy is kept
     removed_pcs: int = 0  # leading components removed before whitening (the sweep's
     # removed_pcs: a fit per count)
+    rectify: bool = False  # [relu(z), relu(-z)] (vpr_jax.methods.rectify): a fit per value
 
     def __post_init__(self):
         n = self.n_components
@@ -123,12 +125,14 @@ def _report(state: ica.ICAState, settings: dict) -> Report:
     )
 
 
-method = Method(
-    fit=fit,
-    encode=encode,
-    settings=Settings,
-    needs=("pca_fit",),
-    random=True,
-    check=check,
-    report=_report,
+method = rectifiable(
+    Method(
+        fit=fit,
+        encode=encode,
+        settings=Settings,
+        needs=("pca_fit",),
+        random=True,
+        check=check,
+        report=_report,
+    )
 )

@@ -5,10 +5,15 @@ PCA fit: a place's two seasons vary equally in every direction (a learnt Mahalan
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
-from vpr_jax.encoders import lda
+import jax.numpy as jnp
+
+from vpr_jax.encoders import autoencoders as ae
+from vpr_jax.encoders import lda, pca
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, PCAFit, Report, TrainingSet
+from vpr_jax.methods.rectify import rectifiable
 
 
 @dataclasses.dataclass(frozen=True)
@@ -17,6 +22,10 @@ class Settings:
 
     n_components: int = 200  # leading principal components of the pair's PCA fit whitened in
     shrinkage: float = 0.1  # towards trace/m x identity: 0 plain whitening, 1 PCA coordinates
+    rectify: bool = False  # [relu(z), relu(-z)] (vpr_jax.methods.rectify): a fit per value
+    # true: each image to zero mean and std 1/4 first (a season's global brightness and
+    # contrast gone), whitened in a PCA fit of its own of both seasons' standardised images
+    standardise: bool = False
 
     def __post_init__(self):
         if self.n_components < 1:
@@ -28,14 +37,31 @@ class Settings:
             )
 
 
-def fit(train, aligned, key, *, pca_fit: PCAFit, n_components: int, shrinkage: float):
+class Standardised(NamedTuple):
+    """An lda fit of standardised images (``lda.standardise``)."""
+
+    state: lda.LDAState
+
+
+def fit(
+    train, aligned, key, *, pca_fit: PCAFit, n_components: int, shrinkage: float, standardise: bool
+):
     """In all the components the training images hold, when they hold fewer (the shared
-    fit keeps only its numerical rank)."""
-    m = min(n_components, len(pca_fit.state.components))
-    return lda.fit_lda(pca_fit.state, *aligned, m, shrinkage)
+    fit keeps only its numerical rank). Standardised: in the leading ``n_components`` of a
+    PCA fit of both seasons' standardised training images, as an auto-encoder's lda start
+    (``vpr_jax.encoders.autoencoders.lda_start``)."""
+    if not standardise:
+        m = min(n_components, len(pca_fit.state.components))
+        return lda.fit_lda(pca_fit.state, *aligned, m, shrinkage)
+    a, b = (ae.standardise(jnp.asarray(x, jnp.float32)) for x in aligned)
+    both = pca.flatten(jnp.concatenate([a, b]))
+    fitted = pca.fit_pca(both, min(n_components, pca.rank_limit(*both.shape)), seed=0)
+    return Standardised(lda.fit_lda(fitted, a, b, len(fitted.components), shrinkage))
 
 
-def encode(state: lda.LDAState, images):
+def encode(state, images):
+    if isinstance(state, Standardised):
+        return lda.encode(state.state, ae.standardise(jnp.asarray(images, jnp.float32)))
     return lda.encode(state, images)
 
 
@@ -52,7 +78,8 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings:
     return settings
 
 
-def _report(state: lda.LDAState, settings: dict) -> Report:
+def _report(state, settings: dict) -> Report:
+    state = state.state if isinstance(state, Standardised) else state
     held, asked = len(state.transform), settings["n_components"]
     warning = None
     if held < asked:
@@ -63,12 +90,14 @@ def _report(state: lda.LDAState, settings: dict) -> Report:
     return Report(basis=state.transform, basis_name="invariant_directions", warning=warning)
 
 
-method = Method(
-    fit=fit,
-    encode=encode,
-    settings=Settings,
-    needs=("aligned", "pca_fit"),
-    random=False,
-    check=check,
-    report=_report,
+method = rectifiable(
+    Method(
+        fit=fit,
+        encode=encode,
+        settings=Settings,
+        needs=("aligned", "pca_fit"),
+        random=False,
+        check=check,
+        report=_report,
+    )
 )

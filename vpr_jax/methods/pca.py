@@ -38,6 +38,7 @@ from vpr_jax.methods.contract import (
     Report,
     TrainingSet,
 )
+from vpr_jax.methods.rectify import rectifiable
 
 OUTPUTS = ("coefficients", "pixels")
 
@@ -53,6 +54,7 @@ class Settings:
     # 0: the change-removal descriptor; c > 0: after the removed ones, c components each
     # scaled to unit variance, nothing else (PCA whitening: what ica rotates)
     whiten: int = 0
+    rectify: bool = False  # [relu(z), relu(-z)] (vpr_jax.methods.rectify): a fit per value
 
     def __post_init__(self):
         if self.whiten < 0:
@@ -189,14 +191,16 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings | None:
     return settings
 
 
-method = Method(
-    fit=fit,
-    encode=encode,
-    settings=Settings,
-    # one fit serves every removed count; in coefficients, one encoding too (a suffix each)
-    axes=lambda s: {"removed_pcs": SERVED if s.output == "pixels" or s.whiten else SUFFIX},
-    needs=("pca_fit",),
-    random=False,
-    check=check,
-    report=_report,
+method = rectifiable(
+    Method(
+        fit=fit,
+        encode=encode,
+        settings=Settings,
+        # one fit serves every removed count; in coefficients, one encoding too (a suffix each)
+        axes=lambda s: {"removed_pcs": SERVED if s.output == "pixels" or s.whiten else SUFFIX},
+        needs=("pca_fit",),
+        random=False,
+        check=check,
+        report=_report,
+    )
 )
