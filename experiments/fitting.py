@@ -26,6 +26,7 @@ from experiments.plan import Plan
 from experiments.resolve import Fit, Served
 from experiments.saving import save_state
 from vpr_jax.data.pair import PairData, with_train_places
+from vpr_jax.encoders import pca as pca_math
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.host_arrays import release_free_memory
 from vpr_jax.method_table import MethodInfo
@@ -86,10 +87,13 @@ def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
         )
         held = len(state.components)
         if held < asked:
+            floor = pca_math.rank_tolerance(n_images, n_pixels)
             run.log(
                 f"note: {run.data.name}: the PCA fit holds {held} of the {asked} components "
-                f"asked: {n_images} training images of numerical rank {held} (repeated or "
-                "constant frames); counts beyond it are left out "
+                f"asked: the other {asked - held} carry less than {floor:.1e} of the largest "
+                f"variance, below what float32 resolves in sums over {n_images} training "
+                "images (repeated or constant frames have such components, and so has a "
+                "spectrum that falls that far); counts beyond them are left out "
                 "(docs/methods.md#pca-on-any-training-set)"
             )
         run.made[key] = PCAFit(state=state, seconds=seconds)

@@ -5,23 +5,29 @@ tables are built by ``experiments.results_md``; the paired differences they show
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import re
 import shutil
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
 
 from experiments.cells import INCOMPLETE, block_length
 from experiments.results_md import Curves, markdown_table, same_models
-from vpr_jax.config import SweepConfig
+from vpr_jax.config import SweepConfig, plain
 from vpr_jax.errors import first_line
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
 from vpr_jax.evaluation.metrics import SCALAR_NAMES, pr_curve
 from vpr_jax.files import atomic_write_text, replace_folder
-from vpr_jax.outputs.palette import compare_labels, label_of
+from vpr_jax.method_table import METHODS, NAMES, load_object, model_label
+from vpr_jax.methods import settings as method_settings
+from vpr_jax.methods.contract import ROWS, as_method
+from vpr_jax.outputs.palette import OBJECTIVE_ORDER, compare_labels, curve_label, label_of
 from vpr_jax.outputs.plots import (
+    NotScored,
     by_label,
     correct_matches_figure,
     learning_curves_figure,
@@ -63,6 +69,8 @@ def report_steps(logdir: Path, cfg: SweepConfig, rows: list[ResultRow]) -> dict[
 
         return step
 
+    methods = (*NAMES, *cfg.plugin, *cfg.precomputed)
+    missing = functools.cache(lambda: not_scored(logdir / "sweep.log", rows, methods))
     steps = {
         "results.md": lambda: atomic_write_text(
             logdir / "results.md",
@@ -71,6 +79,9 @@ def report_steps(logdir: Path, cfg: SweepConfig, rows: list[ResultRow]) -> dict[
                 *differences_to_baseline(rows, curve, cfg),
                 same_models(rows, curve),
                 differences_to_start(rows, curve, cfg),
+                wanted=cfg.baseline,
+                not_scored=missing(),
+                changed=changed_settings(cfg, {r.method for r in rows}),
             ),
         ),
         f"the {SUMMARY} runs": lambda: write_tb_summaries(logdir, main, curve, cfg),
@@ -91,9 +102,82 @@ def report_steps(logdir: Path, cfg: SweepConfig, rows: list[ResultRow]) -> dict[
         )
     if any(training_places(r) is not None for r in rows):
         steps["figures/learning_curves.png"] = figure(
-            lambda path: learning_curves_figure(rows, path), "learning_curves.png"
+            lambda path: learning_curves_figure(rows, path, missing()), "learning_curves.png"
         )
     return steps
+
+
+# sweep.log's note on cells a fit could not serve (experiments.fitting), and a run name's
+# training places (a learning curve's point)
+_NOT_SCORED = re.compile(r"^note: (\S+) (.+?): not scored: (.+)$")
+_PLACES = re.compile(r"(?:^|_)train_places=(\d+)(?=_|$)")
+
+
+def not_scored(log: Path, rows: list[ResultRow], methods: Iterable[str]) -> NotScored:
+    """The learning curves' points without rows whose runs sweep.log notes as not scored
+    (``note: <pair> <runs>: not scored: <why>``, ``experiments.fitting``), by pair, method,
+    objective and training places: the first run's reason, with the count of runs where
+    several (each removed count, seed or setting). A run is the method and objective whose
+    name (``model_label``; the rows', then ``methods`` x the objectives) is the longest
+    start of it; a note of a resumed sweep's earlier run counts once."""
+    if not log.exists():
+        return {}
+    labels = {curve_label(r): (r.method, r.objective) for r in rows}
+    for method in methods:
+        for objective in OBJECTIVE_ORDER:  # "" before the paper's objective: the same name
+            labels.setdefault(model_label(method, objective), (method, objective))
+    found: dict[tuple, dict[str, str]] = {}
+    for line in log.read_text(errors="replace").splitlines():
+        note = _NOT_SCORED.match(line)
+        for run in note.group(2).split(", ") if note else ():
+            places = _PLACES.search(run)
+            names = [n for n in labels if run == n or run.startswith(n + "_")]
+            if places and names:
+                key = (note.group(1), *labels[max(names, key=len)], int(places.group(1)))
+                found.setdefault(key, {})[run] = note.group(3)
+    scored = {(r.season_pair, r.method, r.objective, training_places(r)) for r in rows}
+    return {key: _reason(why) for key, why in found.items() if key not in scored}
+
+
+def _reason(why: dict[str, str]) -> str:
+    """The reason of a point's first run not scored, and how many were where several."""
+    first = next(iter(why.values()))
+    return first if len(why) == 1 else f"{first}; {len(why)} runs, sweep.log has each"
+
+
+def changed_settings(cfg: SweepConfig, methods: Iterable[str]) -> dict[str, str]:
+    """Per built-in method of ``methods`` (in the method table's order): its settings in
+    ``cfg`` other than their defaults (its ``Settings``'; a training setting's: ``train.*``)
+    that no column of results.md shows (not a sweep key, an axis or the objective), as
+    ``whiten=64``."""
+    out = {}
+    for name in (m for m in NAMES if m in methods):
+        method = as_method(load_object(METHODS[name]), name)
+        schema, given = method.settings, getattr(cfg, name)
+        if not dataclasses.is_dataclass(schema):
+            continue
+        shown = {*SWEEP_KEYS, *(k for k, kind in method.axes(schema()).items() if kind == ROWS)}
+        changed = tuple(
+            (f.name, given[f.name])
+            for f in dataclasses.fields(schema)
+            if f.name in given
+            and f.name not in shown
+            and not method_settings.is_axis(schema, f.name, given[f.name])
+            and plain(given[f.name]) != plain(_default(f, cfg))
+        )
+        if changed:
+            out[name] = method_settings.label(changed)
+    return out
+
+
+def _default(field: dataclasses.Field, cfg: SweepConfig):
+    """A setting's default: its field's, or for a training setting without one the sweep's
+    ``train.*`` (which fills it in)."""
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    if field.default is None and hasattr(cfg.train, field.name):
+        return getattr(cfg.train, field.name)
+    return field.default
 
 
 def write_report(logdir: Path, cfg: SweepConfig, log: RunLog) -> list[str]:

@@ -2,9 +2,10 @@
 and what ``experiments.report`` computes from the cells' curve.npz. Its sections: the intro
 (queries, ground truth, seeds, protocol fingerprints); each method at the setting chosen on
 the validation places (recall@1 and AUC-PR with their 95% intervals, what decided the choice,
-the paired difference to the baseline), with notes on each auto-encoder's best objective,
-trained models kept at their start and selected rows that are one model; the spread over
-seeds; trained methods against their start; the learning curves (``split.train_places``);
+the paired difference to the baseline, or why there is none), with notes on the settings
+other than the defaults, each auto-encoder's best objective, trained models kept at their
+start and selected rows that are one model; the spread over seeds; trained methods against
+their start; the learning curves (``split.train_places``; a point not scored says why);
 the best setting per method chosen on the test queries (optimistic); every cell; the cells
 that did not converge."""
 
@@ -20,9 +21,11 @@ from vpr_jax.method_table import NAMES as METHOD_NAMES
 from vpr_jax.outputs.results import (
     SWEEP_KEYS,
     ResultRow,
+    baseline_of,
     best_objectives,
     best_rows,
     choice_order,
+    largest_places,
     plain_setting,
     selected_rows,
     selection_reasons,
@@ -31,6 +34,8 @@ from vpr_jax.outputs.results import (
 )
 
 Curves = Callable[[str], dict[str, np.ndarray]]  # run -> its curve.npz arrays
+# (pair, method, objective, training places) -> why a learning curve's point was not scored
+NotScored = dict[tuple[str, str, str, int], str]
 
 # What names a cell in a table: its pair, method, objective and settings, ds and seed.
 CELL_NAME_COLUMNS = ("season_pair", "method", "objective", "setting", *SWEEP_KEYS, "ds", "seed")
@@ -71,7 +76,12 @@ VERSUS_NOTE = {
         "vs {base}: a paired bootstrap of the difference to the pair's selected {base} row on "
         "the same queries; better / worse when its interval excludes 0."
     ),
-    False: "No PCA or outside set in this sweep: no paired differences.",
+    False: (
+        "No paired differences (n/a in the vs column): they are to the pair's selected rows "
+        "of the baseline, {wanted} (baseline={name}), or without it of the first outside "
+        "set, and this sweep has neither: add {name} to methods, or set baseline to a "
+        "method the sweep runs."
+    ),
 }
 
 
@@ -93,46 +103,45 @@ def markdown_table(
     baseline: str | None = None,
     same_models: list[list[ResultRow]] = (),
     to_start: dict[str, Difference] | None = None,
+    *,
+    wanted: str = "",
+    not_scored: NotScored | None = None,
+    changed: dict[str, str] | None = None,
 ) -> str:
     """results.md: the validation-selected setting per method (recall@1 and AUC-PR with
     their 95% intervals, what decided the choice, and the paired difference to the
-    ``baseline`` method (PCA, or the first outside set) that ``differences`` holds per run),
-    the spread over seeds where there are several, then the best setting chosen on the test
-    queries (optimistic), then every cell. The setting, ds and seed columns appear once a
-    sweep has more than one value of them."""
+    ``baseline`` method (PCA, or the first outside set) that ``differences`` holds per run;
+    ``wanted``: the sweep's ``baseline``, named where the sweep lacks it), the methods run
+    with settings other than their defaults (``changed``: method -> ``whiten=64``), the
+    spread over seeds where there are several, the learning curves (a point ``not_scored``
+    gives a reason for: that reason), then the best setting chosen on the test queries
+    (optimistic), then every cell. The setting, ds and seed columns appear once a sweep has
+    more than one value of them."""
     base = _label(baseline)
     shown = _shown(rows)
-    preferred = best_objectives(rows)  # runs marked "best"
-    first = rows[0] if rows else None
-    seeds = ", ".join(str(s) for s in sorted({r.seed for r in rows}))
-    protocols = sorted({(r.season_pair, r.protocol) for r in rows})
-    intro = (
-        f"{first.n_test} queries per pair, a match is correct within {first.ground_truth}, "
-        f"{'seeds' if 'seed' in shown else 'seed'} {seeds}. recall_at_1 is the fraction of "
-        "correct matches (= precision at 100% recall). Protocol fingerprints (the images, "
-        "ground truth, direction and validation places measured on; docs/metrics.md): "
-        + ", ".join(f"{pair} {fp}" for pair, fp in protocols)
-        + "."
-        if first
-        else "No cells yet."
-    )
+    # runs marked "best": a learning curve's at its largest training places, the others'
+    # objectives there
+    preferred = best_objectives(largest_places(rows))
+    versus = _versus_texts(rows, differences or {}, baseline, wanted)
     lines = [
         "# Results",
         "",
-        intro,
+        _intro(rows, shown),
         "",
         "## Each method at the setting chosen on the validation places",
         "",
-        SELECTION_NOTE + VERSUS_NOTE[baseline is not None].format(base=base),
+        SELECTION_NOTE
+        + VERSUS_NOTE[baseline is not None].format(base=base, wanted=_label(wanted), name=wanted),
         "",
-        *_headline(rows, differences or {}, shown, preferred, base),
+        *_headline(rows, versus, shown, preferred, base),
+        *_changed_settings(rows, changed or {}),
         *_best_objective_note(rows, preferred),
         *_kept_at_start(selected_rows(rows)),
         *_same_models(same_models),
         "",
         *_seed_spread(rows, differences or {}, base),
         *_against_start(rows, to_start or {}),
-        *_learning_curves(rows),
+        *_learning_curves(rows, not_scored or {}),
         "## Best setting per method, chosen on the test queries (optimistic)",
         "",
         *_cell_table(best_rows(rows), shown),
@@ -144,6 +153,23 @@ def markdown_table(
         *_not_converged(rows),
     ]
     return "\n".join(lines)
+
+
+def _intro(rows: list[ResultRow], shown: set[str]) -> str:
+    """results.md's first paragraph: queries, ground truth, seeds, protocol fingerprints."""
+    if not rows:
+        return "No cells yet."
+    first = rows[0]
+    seeds = ", ".join(str(s) for s in sorted({r.seed for r in rows}))
+    protocols = sorted({(r.season_pair, r.protocol) for r in rows})
+    return (
+        f"{first.n_test} queries per pair, a match is correct within {first.ground_truth}, "
+        f"{'seeds' if 'seed' in shown else 'seed'} {seeds}. recall_at_1 is the fraction of "
+        "correct matches (= precision at 100% recall). Protocol fingerprints (the images, "
+        "ground truth, direction and validation places measured on; docs/metrics.md): "
+        + ", ".join(f"{pair} {fp}" for pair, fp in protocols)
+        + "."
+    )
 
 
 def _in_order(rows: list[ResultRow]) -> list[ResultRow]:
@@ -183,19 +209,36 @@ def _label(baseline: str | None) -> str:
     return baseline.upper() if baseline in METHOD_NAMES else baseline
 
 
-def _versus(row: ResultRow, differences: dict[str, Difference], base: str) -> tuple[str, str]:
-    """(the difference to the baseline with its interval, its label) for the headline."""
-    diff = differences.get(row.run)
-    if _label(row.method) == base:
-        return "", "baseline"
-    if diff is None:
-        return "", "n/a"
-    return f"{diff.value:+.3f} [{diff.low:+.3f}, {diff.high:+.3f}]", diff.label
+def _versus_texts(
+    rows: list[ResultRow],
+    differences: dict[str, Difference],
+    baseline: str | None,
+    wanted: str,
+) -> dict[str, tuple[str, str]]:
+    """Per selected run, the headline's (difference to the baseline with its interval, its
+    label); where there is none, why: the baseline's own rows, no baseline in the sweep,
+    no baseline row to pair with (its pair, ds and training places), other queries."""
+    selected = selected_rows(rows)
+    base = _label(baseline)
+    out = {}
+    for row in selected:
+        diff = differences.get(row.run)
+        if baseline is None:
+            out[row.run] = "", f"n/a: no {_label(wanted)} in this sweep"
+        elif row.method == baseline:
+            out[row.run] = "", "baseline"
+        elif diff is not None:
+            out[row.run] = f"{diff.value:+.3f} [{diff.low:+.3f}, {diff.high:+.3f}]", diff.label
+        elif baseline_of(row, selected, baseline) is None:
+            out[row.run] = "", f"n/a: no {base} row to pair with"
+        else:
+            out[row.run] = "", f"n/a: other queries than {base}'s"
+    return out
 
 
 def _headline(
     rows: list[ResultRow],
-    differences: dict[str, Difference],
+    versus: dict[str, tuple[str, str]],
     shown: set[str],
     preferred: set[str],
     base: str,
@@ -203,7 +246,6 @@ def _headline(
     body = []
     reasons = selection_reasons(rows)
     for r in _in_order(selected_rows(rows)):
-        versus, label = _versus(r, differences, base)
         optional = {"setting": r.setting, "ds": str(r.ds), "seed": str(r.seed)}
         body.append(
             [
@@ -221,12 +263,25 @@ def _headline(
                 _ci(r.recall_at_1_ci_low, r.recall_at_1_ci_high),
                 f"{r.auc_pr:.3f}",
                 _ci(r.auc_pr_ci_low, r.auc_pr_ci_high),
-                versus,
-                label,
+                *versus[r.run],
             ]
         )
     head = tuple(c.format(base=base) for c in _columns(HEADLINE_COLUMNS, shown))
     return _markdown(head, body)
+
+
+def _changed_settings(rows: list[ResultRow], changed: dict[str, str]) -> list[str]:
+    """A line naming the settings other than their defaults that no column shows (given
+    on the command line or by the preset), per method of the table."""
+    methods = {r.method for r in rows}
+    named = "; ".join(f"{m} {text}" for m, text in changed.items() if m in methods)
+    if not named:
+        return []
+    return [
+        "",
+        f"Settings other than the defaults (given on the command line or by the preset; the "
+        f"setting column shows those swept): {named}.",
+    ]
 
 
 def _spread(values: list[float]) -> str:
@@ -290,24 +345,28 @@ def _seed_spread(rows: list[ResultRow], differences: dict[str, Difference], base
     ]
 
 
-def _learning_curves(rows: list[ResultRow]) -> list[str]:
+def _learning_curves(rows: list[ResultRow], not_scored: NotScored) -> list[str]:
     """results.md's learning curves (``split.train_places``): per pair, method and
     objective, recall@1 with its interval at each value of training places (single images,
     the validation-selected setting at each; several seeds: the mean, then the seeds'
-    range)."""
+    range; a point not scored: why, from ``not_scored``)."""
     shortest = min((r.ds for r in rows), default=1)
     best = [r for r in selected_rows(rows) if r.ds == shortest and training_places(r) is not None]
     if not best:
         return []
-    places = sorted({training_places(r) for r in best})
+    places = sorted({training_places(r) for r in best} | {k[3] for k in not_scored})
     table: dict[tuple, dict[int, list[ResultRow]]] = {}
     for r in _in_order(best):
         key = (r.season_pair, r.method, r.objective)
         table.setdefault(key, {}).setdefault(training_places(r), []).append(r)
+    for key in sorted(k[:3] for k in not_scored):  # a curve never scored: its row too
+        table.setdefault(key, {})
 
-    def cell(mine: list[ResultRow] | None, own_setting: bool) -> str:
+    def cell(key: tuple, p: int, own_setting: bool) -> str:
+        mine = table[key].get(p)
         if not mine:
-            return ""
+            why = not_scored.get((*key, p))
+            return "not scored ({})".format(why.replace("|", "\\|")) if why else ""
         start = " (its start)" if all(r.kept_epoch == 0 for r in mine) else ""
         if len(mine) > 1:  # seeds
             values = [r.recall_at_1 for r in mine]
@@ -317,11 +376,11 @@ def _learning_curves(rows: list[ResultRow]) -> list[str]:
         return f"{text}, {plain_setting(r)}" if own_setting and plain_setting(r) else text
 
     body = []
-    for key, by_places in table.items():
+    for key, by_places in sorted(table.items()):
         # the setting validation chose: in its column when one for every value, else per cell
         chosen = {plain_setting(r) for rs in by_places.values() for r in rs}
         one = chosen.pop() if len(chosen) == 1 else ""
-        cells = (cell(by_places.get(p), own_setting=not one) for p in places)
+        cells = (cell(key, p, own_setting=not one) for p in places)
         body.append([*key, one, *cells])
     head = ("season_pair", "method", "objective", "setting", *(f"{p} places" for p in places))
     return [
@@ -331,8 +390,9 @@ def _learning_curves(rows: list[ResultRow]) -> list[str]:
         "places (split.train_places, spread evenly over the training stretch; the "
         "validation and test places are the same for every value, so is the protocol), at "
         "the setting the validation places choose for each. Every value is rows of its own, "
-        "never chosen among: more data is not a choice. figures/learning_curves.png draws "
-        "them.",
+        "never chosen among: more data is not a choice. A value a method could not be "
+        "scored at says why (sweep.log has the note of each run). "
+        "figures/learning_curves.png draws them.",
         "",
         *_markdown(head, body),
         "",
@@ -437,14 +497,20 @@ def same_models(rows: list[ResultRow], curve: Curves) -> list[list[ResultRow]]:
 
 
 def _best_objective_note(rows: list[ResultRow], preferred: set[str]) -> list[str]:
-    """A line naming each auto-encoder's best objective per pair (marked "best" above)."""
+    """A line naming each auto-encoder's best objective per pair (marked "best" above): one
+    per method, a learning curve's at its largest training places."""
     best = [r for r in rows if r.run in preferred]
     if not best:
         return []
     named = ", ".join(
         dict.fromkeys(f"{r.season_pair} {r.method} {r.objective}" for r in _in_order(best))
     )
-    return ["", f"Best objective by validation recall@1 (marked best): {named}."]
+    where = (
+        "; a learning curve's at its largest training places"
+        if any(training_places(r) is not None for r in best)
+        else ""
+    )
+    return ["", f"Best objective by validation recall@1 (marked best{where}): {named}."]
 
 
 def _not_converged(rows: list[ResultRow]) -> list[str]:

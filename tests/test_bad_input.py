@@ -169,6 +169,11 @@ CONFIG_CASES = {
     "pair of one season": (["season_pairs=fall-fall"], ["fall-fall"]),
     "pair outside seasons": (["season_pairs=summer-winter"], ["winter", "data.seasons"]),
     "negative removed count": (["removed_pcs=[-1,5]"], ["removed_pcs"]),
+    "one number for seeds": (["seeds=3"], ["seeds=3 names one seed", "seeds=[3]", "seeds=[0,1,2]"]),
+    "a list for a one-value setting": (
+        ["tolerance=[1,2]"],
+        ["tolerance=[1, 2] is a list", "tolerance takes one value"],
+    ),
     "removed count leaves nothing": ([*SMALL, "removed_pcs=[0,599]"], ["599", "up to 498"]),
     "more ICs than the data allow": (
         [*SMALL, "ica.n_components=590"],

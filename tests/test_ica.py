@@ -295,10 +295,10 @@ def test_ica_ranks_exactly_as_pca_whitened_to_its_components():
     for k, c, seed in ((0, 5, 1), (2, 4, 7)):
         state = ica.fit_ica(x, jax.random.key(seed), n_components=c, removed_pcs=k, pca_state=fit)
         with_ica = cosine_similarity(ica.encode(state, queries), ica.encode(state, db))
-        whitened = pca_method.Whitened(fit, jnp.int32(c))
-        with_pca = cosine_similarity(
-            pca_method.encode(whitened, queries, k), pca_method.encode(whitened, db, k)
-        )
+        whitened = pca_method.Whitened(fit, jnp.arange(c, dtype=jnp.int32))
+        described = pca_method.encode(whitened, queries, k)
+        assert described.shape == (len(queries), c)  # the whitened components, nothing else
+        with_pca = cosine_similarity(described, pca_method.encode(whitened, db, k))
         np.testing.assert_allclose(with_ica, with_pca, atol=1e-5)
         np.testing.assert_array_equal(
             np.argmax(np.asarray(with_ica), axis=1), np.argmax(np.asarray(with_pca), axis=1)

@@ -5,8 +5,10 @@ error."""
 
 import csv
 import json
+import re
 import shutil
 import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -120,11 +122,69 @@ def test_folders_that_hold_no_whole_encoder_are_one_clear_error(pca_encoder, tmp
             path.write_bytes(path.read_bytes()[:100])  # cut short, as by a full disk
     with pytest.raises(UserError, match="damaged or incomplete fitted state.*rerun the sweep"):
         load_encoder(damaged)
+    with pytest.raises(UserError, match=r"state \(arrays/\S+ has 100 bytes, saved with \d+\)"):
+        load_encoder(damaged)  # the file cut short, found before orbax reads (see below)
     newer = shutil.copytree(pca_encoder, tmp_path / "newer")
     description = json.loads((newer / "encoder.json").read_text())
     (newer / "encoder.json").write_text(json.dumps({**description, "format": 99}))
     with pytest.raises(UserError, match="format 99, this suite reads 2: update vpr_jax"):
         load_encoder(newer)
+
+
+def test_a_cut_short_state_is_refused_before_orbax_reads_it_and_orbax_is_always_closed(
+    pca_encoder, tmp_path, monkeypatch
+):
+    """Orbax reads the leaves concurrently and, when one read fails, closes its event loop
+    while the others are in flight: those report to the closed loop from TensorStore's
+    threads after the error (``RuntimeError: Event loop is closed``, an unraisable exception
+    pytest warns of). So a state whose files were cut short is refused from the sizes saved
+    beside them, without asking orbax; and the checkpointer orbax reads with is closed,
+    also when it raises."""
+    import orbax.checkpoint as ocp
+
+    def never(*args, **kwargs):
+        pytest.fail("orbax was asked to read a cut-short state")
+
+    cut = shutil.copytree(pca_encoder, tmp_path / "cut")
+    files = [p for p in (cut / "state" / "arrays").rglob("*") if p.is_file()]
+    biggest = max(files, key=lambda p: p.stat().st_size)
+    biggest.write_bytes(biggest.read_bytes()[:-1])
+    monkeypatch.setattr(ocp.Checkpointer, "restore", never)
+    with pytest.raises(UserError, match=rf"{biggest.name} has \d+ bytes, saved with \d+\): rerun"):
+        load_encoder(cut)
+
+    def fault(*args, **kwargs):
+        raise ValueError("DATA_LOSS: simulated read fault")
+
+    closed = []
+    close = ocp.Checkpointer.close
+    monkeypatch.setattr(ocp.Checkpointer, "restore", fault)
+    monkeypatch.setattr(ocp.Checkpointer, "close", lambda self: closed.append(close(self)))
+    with pytest.raises(UserError, match=r"\(ValueError: DATA_LOSS: simulated read fault\)"):
+        load_encoder(pca_encoder)
+    assert len(closed) == 1
+
+
+def test_a_model_name_no_fit_of_the_pair_has_is_one_line_naming_the_pair_s_folders(
+    small_sweep, tmp_path
+):
+    """``<pair>/fae`` when the sweep ran ``fae.objective=[cross_season]`` alone (the paper's
+    objective, whose folder is ``fae``, not among them): one line naming the folders the pair
+    has, and the one named loads."""
+    logdir, _ = small_sweep
+    saved = Path(_folder(logdir, "summer-fall", "fae", "cross_season"))
+    pair = tmp_path / "summer-fall"
+    shutil.copytree(saved, pair / saved.name, ignore=shutil.ignore_patterns("training"))
+    assert saved.name == "fae_cross_season"
+    asked = re.escape(str(pair / "fae"))
+    with pytest.raises(
+        UserError,
+        match=rf"^no fitted encoder in {asked}: this pair's folders are fae_cross_season: "
+        "pass one of them",
+    ):
+        load_encoder(pair / "fae")
+    encode, params = load_encoder(pair / "fae_cross_season")
+    assert encode(params, np.zeros((2, 32, 64), np.float32)).shape[0] == 2
 
 
 def test_the_listing_command_names_every_encoder_and_refuses_other_folders(small_sweep, tmp_path):

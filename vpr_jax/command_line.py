@@ -4,7 +4,7 @@ named (its given keys)."""
 
 from __future__ import annotations
 
-from omegaconf import OmegaConf
+from omegaconf import ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from vpr_jax import presets
@@ -29,6 +29,11 @@ def _normalise_cli(argv: list[str]) -> list[str]:
         key, sep, value = arg.partition("=")
         if not sep:
             raise UserError(f"argument {arg!r} is not key=value: write e.g. season_pairs=all")
+        if key == "seeds" and value.strip().lstrip("-").isdigit():
+            raise UserError(
+                f"seeds={value} names one seed, {value}: write seeds=[{value}] for that seed "
+                f"alone, or e.g. seeds=[0,1,2] for three seeds"
+            )
         if key in _LIST_KEYS and value and not value.startswith("["):
             value = f"[{value}]"
         if key == "season_pairs" and value.startswith("["):
@@ -43,6 +48,11 @@ def given_keys(argv: list[str]) -> frozenset[str]:
 
 
 def _first_line(err: OmegaConfBaseException) -> str:
+    key, value = getattr(err, "full_key", ""), getattr(err, "value", None)
+    if key and isinstance(value, ListConfig):
+        return (
+            f"{key}={OmegaConf.to_container(value)} is a list, but {key} takes one value: give one"
+        )
     lines = str(err).splitlines()
     key = next((ln.split(":", 1)[1].strip() for ln in lines if "full_key:" in ln), "")
     return f"{lines[0]} (key {key})" if key else lines[0]

@@ -532,8 +532,11 @@ def precomputed_sets(value: dict) -> dict[str, dict[str, str]]:
 def normalised(cfg: SweepConfig) -> SweepConfig:
     """The config as the sweep reads it, made where OmegaConf hands it over: counts sorted
     and each once, outside sets by name with absolute paths, ``methods`` without the
-    ``precomputed`` entry (it stands for the sets), the default logdir named."""
-    source = f"_{cfg.data.source}" if cfg.preset in presets.SOURCE_FREE else ""
+    ``precomputed`` entry (it stands for the sets), the default logdir named: the preset's
+    name, then the data source where it is not the preset's own (a preset that names none:
+    the built-in route), so runs of one preset on two sources do not meet in one folder."""
+    own = None if cfg.preset in presets.SOURCE_FREE else presets.source(cfg.preset) or "synthetic"
+    source = "" if cfg.data.source == own else f"_{cfg.data.source}"
     return dataclasses.replace(
         cfg,
         removed_pcs=tuple(sorted(set(cfg.removed_pcs))),

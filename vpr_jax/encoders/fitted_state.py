@@ -9,15 +9,23 @@ Restoring rebuilds the skeleton, gives orbax the target of every leaf's shape an
 and puts the arrays back in their places. Python numbers become 0-d arrays.
 
 Writes are whole or absent: the new folder is written aside and moved into place.
+
+The size of every file orbax wrote is kept too (``sizes.json``): a folder whose arrays were
+cut short or lost since (a copy interrupted, a full disk) is refused before orbax reads it.
+Orbax reads the leaves concurrently and, when one read fails, closes its event loop while
+the others are still in flight; those then report to the closed loop from TensorStore's
+threads (``RuntimeError: Event loop is closed``, an unraisable exception) after the error.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import json
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +37,7 @@ from vpr_jax.encoders.checkpoints import as_os_error, orbax_noise_held
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.files import replace_folder
 
-SKELETON, ARRAYS = "skeleton.json", "arrays"
+SKELETON, ARRAYS, SIZES = "skeleton.json", "arrays", "sizes.json"
 
 
 def _skeleton(tree: Any, leaves: list[np.ndarray]) -> Any:
@@ -144,14 +152,47 @@ def _targets(skeleton: Any, out: dict) -> dict:
     return out
 
 
-def _checkpointer() -> ocp.Checkpointer:
+@contextlib.contextmanager
+def _checkpointer() -> Iterator[ocp.Checkpointer]:
     """Synchronous, and this process's alone: with several processes (``mesh.distributed``)
-    process 0 writes, and orbax must not wait for the others at a barrier."""
+    process 0 writes, and orbax must not wait for the others at a barrier. Closed on the way
+    out, whether the save or restore succeeded or not."""
     me = ocp.options.MultiprocessingOptions(
         primary_host=jax.process_index(), active_processes={jax.process_index()}
     )
     handler = ocp.StandardCheckpointHandler(multiprocessing_options=me)
-    return ocp.Checkpointer(handler, multiprocessing_options=me)
+    checkpointer = ocp.Checkpointer(handler, multiprocessing_options=me)
+    try:
+        yield checkpointer
+    finally:
+        checkpointer.close()
+
+
+def _sizes(arrays: Path) -> dict[str, int]:
+    """Every file under ``arrays``, by its path there, with its size in bytes."""
+    return {
+        path.relative_to(arrays).as_posix(): path.stat().st_size
+        for path in sorted(arrays.rglob("*"))
+        if path.is_file()
+    }
+
+
+def _damage(folder: Path) -> str | None:
+    """What is missing or cut short among the files orbax wrote, as ``sizes.json`` recorded
+    them (None: all there; a folder saved without the record is left to orbax)."""
+    try:
+        recorded = json.loads((folder / SIZES).read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as err:
+        return f"{SIZES}: {err}"
+    found = _sizes(folder / ARRAYS)
+    for name, size in recorded.items():
+        if name not in found:
+            return f"{ARRAYS}/{name} is missing"
+        if found[name] != size:
+            return f"{ARRAYS}/{name} has {found[name]} bytes, saved with {size}"
+    return None
 
 
 def save_state(folder: Path, state: Any, files: dict[str, str] | None = None) -> None:
@@ -165,10 +206,11 @@ def save_state(folder: Path, state: Any, files: dict[str, str] | None = None) ->
     try:
         arrays = {f"leaf_{i:03d}": leaf for i, leaf in enumerate(leaves)}
         try:
-            with orbax_noise_held():
-                _checkpointer().save(staging / ARRAYS, args=ocp.args.StandardSave(arrays))
+            with orbax_noise_held(), _checkpointer() as checkpointer:
+                checkpointer.save(staging / ARRAYS, args=ocp.args.StandardSave(arrays))
         except (ValueError, RuntimeError) as err:  # a write fault, as the OSError it was
             raise as_os_error(err, folder) from None
+        (staging / SIZES).write_text(json.dumps(_sizes(staging / ARRAYS)))
         (staging / SKELETON).write_text(json.dumps(skeleton))
         for name, text in (files or {}).items():
             (staging / name).write_text(text)
@@ -189,15 +231,19 @@ def restore_state(folder: Path) -> Any:
             "saved (python -m experiments.encoders LOGDIR lists them)"
         ) from None
     targets = _targets(skeleton, {})
+    damage = _damage(folder) if targets else None  # found before orbax reads (see above)
+    leaves = {}
     try:
-        leaves = (
-            _checkpointer().restore(folder / ARRAYS, args=ocp.args.StandardRestore(targets))
-            if targets
-            else {}
-        )
+        if targets and damage is None:
+            with _checkpointer() as checkpointer:
+                leaves = checkpointer.restore(
+                    folder / ARRAYS, args=ocp.args.StandardRestore(targets)
+                )
     except Exception as err:  # orbax and TensorStore raise many kinds for a damaged folder
+        damage = first_line(err)[:200]
+    if damage is not None:
         raise UserError(
-            f"{folder} has a damaged or incomplete fitted state ({first_line(err)[:200]}): "
+            f"{folder} has a damaged or incomplete fitted state ({damage}): "
             "rerun the sweep that saved it (delete the folder first)"
-        ) from None
+        )
     return _rebuild(skeleton, leaves)

@@ -342,13 +342,13 @@ def fit_pca(
     """Fit PCA on training images (any trailing shape; flattened to D pixels).
 
     ``n_components`` defaults to the rank limit min(N - 1, D); the fit holds fewer where
-    the data's numerical rank is lower (``numerical_rank``: repeated or constant images).
-    ``NotOrthonormal`` for a fit that is not orthonormal (``check_orthonormal``). The covariance
-    solver sums
-    the centred scatter over blocks of ``block_rows`` images, and with a ``mesh`` splits
-    the images across its devices (``vpr_jax.sharding``); the Gram and subspace solvers
-    run on one device (the subspace solver's products are a few passes over the images).
-    ``seed`` draws the subspace solver's starting directions.
+    the data's numerical rank is lower (``numerical_rank``: repeated or constant images, or
+    a spectrum that falls below float32's resolution). ``NotOrthonormal`` for a fit that is
+    not orthonormal (``check_orthonormal``). The covariance solver sums the centred scatter
+    over blocks of ``block_rows`` images, and with a ``mesh`` splits the images across its
+    devices (``vpr_jax.sharding``); the Gram and subspace solvers run on one device (the
+    subspace solver's products are a few passes over the images). ``seed`` draws the
+    subspace solver's starting directions.
     """
     if mesh is None:
         x = device_rows(train)

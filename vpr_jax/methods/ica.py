@@ -54,7 +54,7 @@ def fit(train, aligned, key, *, pca_fit: PCAFit, removed_pcs: int, **settings) -
     rank = ica.data_rank(pca_fit.state, len(train))
     try:
         ica.resolve_n_components(settings["n_components"], removed_pcs, rank)
-    except ValueError as err:  # a rank below the plan's limit: repeated or constant frames
+    except ValueError as err:  # a numerical rank below the plan's limit
         raise NotScored(str(err)) from None
     return ica.fit_ica(train, key, removed_pcs=removed_pcs, pca_state=pca_fit.state, **settings)
 

@@ -71,20 +71,34 @@ def _checkpointed_model(folder: Path):
     )
 
 
+MAX_NAMED = 20  # of the pair's folders, in the line refusing a folder that is not one
+
+
 def _chosen_folder(folder: Path) -> Path:
     """``<pair>/<model>`` names a model whose fits have folders of their own
-    (``ica_k005``, ``fae_hidden=1024``): the one chosen on the validation places."""
+    (``ica_k005``, ``fae_hidden=1024``): the one chosen on the validation places. A name
+    no fit of the pair has (``fae`` when only the contrastive objective was swept, whose
+    folder is ``fae_contrastive``): UserError naming the pair's folders."""
     found = []
     for candidate in sorted(folder.parent.glob(f"{folder.name}*/{ENCODER_JSON}")):
         description = read_description(candidate.parent)
         if description.get("model") == folder.name and description.get("selected"):
             found.append((description.get("seed", 0), candidate.parent))
-    if not found:
+    if found:
+        return min(found)[1]
+    names = sorted(p.parent.name for p in folder.parent.glob(f"*/{ENCODER_JSON}"))
+    if not names:
         raise UserError(
             f"{folder} holds no encoder and names none of the pair's: point at a folder a "
             "finished sweep saved (python -m experiments.encoders LOGDIR lists them)"
         )
-    return min(found)[1]
+    shown = ", ".join(names[:MAX_NAMED])
+    if len(names) > MAX_NAMED:
+        shown += f", ... ({len(names)} in all)"
+    raise UserError(
+        f"no fitted encoder in {folder}: this pair's folders are {shown}: pass one of them "
+        "(python -m experiments.encoders LOGDIR lists them)"
+    )
 
 
 class StoredEncoder(NamedTuple):

@@ -82,11 +82,11 @@ class InPixels(NamedTuple):
 
 
 class Whitened(NamedTuple):
-    """A PCA fit that describes images by ``width`` components after the removed ones, each
-    scaled to unit variance (``pca.whiten``)."""
+    """A PCA fit that describes images by the ``pca.whiten`` components after the removed
+    ones, each scaled to unit variance."""
 
     fit: pca.PCAState
-    width: jax.Array  # () int
+    kept: jax.Array  # (whiten,) int: 0, 1, ...: the descriptor's width, as a shape
 
 
 # Above this many components (min(N - 1, D)), auto solves only the leading
@@ -128,19 +128,20 @@ def shared_fit(train, n_components: int, settings: Settings, mesh, seed: int) ->
 def fit(train, aligned, key, *, pca_fit: PCAFit, output: str, whiten: int, **shared_settings):
     """The pair's shared fit is PCA's own (``shared_settings`` shaped it)."""
     if whiten:
-        return Whitened(pca_fit.state, jnp.int32(whiten))
+        return Whitened(pca_fit.state, jnp.arange(whiten, dtype=jnp.int32))
     return InPixels(pca_fit.state) if output == "pixels" else pca_fit.state
 
 
 def encode(state, images: Float[Array, "n h w"], removed_pcs: int = 0) -> Float[Array, "n e"]:
     """The images with their first ``removed_pcs`` principal components removed (whitened:
-    the next ``width`` of them at unit variance, nothing else)."""
+    the next ``pca.whiten`` of them at unit variance, nothing else: a count whose window
+    goes beyond the fit's components is not scored, ``_report``)."""
     if isinstance(state, InPixels):
         return pca.encode(state.fit, images, removed_pcs, "pixels")
     if isinstance(state, Whitened):
         coefficients = pca.project(state.fit, images) * jax.lax.rsqrt(state.fit.explained_variance)
-        kept = jnp.arange(coefficients.shape[1]) - removed_pcs
-        return jnp.where((kept >= 0) & (kept < state.width), coefficients, 0.0)
+        width = state.kept.shape[0]
+        return jax.lax.dynamic_slice_in_dim(coefficients, removed_pcs, width, axis=1)
     return pca.suffix_descriptors(state, images)[:, removed_pcs:]
 
 
@@ -148,7 +149,7 @@ def beyond_rank(k: int, held: int, what: str) -> NotScored:
     """Why a removed count beyond a fit's components is not scored."""
     return NotScored(
         f"removed_pcs={k} is beyond the {held} {what} the training images hold (their "
-        f"numerical rank: repeated or constant frames); counts up to {held} are scored"
+        f"numerical rank in float32); counts up to {held} are scored"
     )
 
 

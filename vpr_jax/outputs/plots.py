@@ -2,12 +2,14 @@
 matches (at the sweep's shortest sequence length, single images unless told otherwise), and
 recall@1 against the sequence length ds. Built from results.csv rows and each cell's saved
 curve, so a resumed sweep draws every cell, not only those it computed this time. Each
-method has the colour TensorBoard gives its method-by-method run (``palette``). A method
+method has the colour TensorBoard gives its method-by-method run (``palette``); the
+learning curves, a colour per method and objective of their own. A method
 fitted with several seeds is one line or bar: the mean of its seeds' recall@1 (the bar's
 whisker their range) and the PR curve of all their queries pooled."""
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,7 +20,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vpr_jax.files import atomic_open  # noqa: E402
-from vpr_jax.outputs.palette import curve_label, label_of, styles  # noqa: E402
+from vpr_jax.method_table import model_label  # noqa: E402
+from vpr_jax.outputs.palette import curve_label, curve_styles, label_of, styles  # noqa: E402
 from vpr_jax.outputs.results import (  # noqa: E402
     ResultRow,
     best_objectives,
@@ -172,28 +175,116 @@ def recall_vs_ds_figure(rows: list[ResultRow], path: Path):
     _save(fig, path)
 
 
-def learning_curves_figure(rows: list[ResultRow], path: Path):
+# (pair, method, objective, training places) -> why that point was not scored
+NotScored = dict[tuple[str, str, str, int], str]
+
+
+def learning_curves_figure(rows: list[ResultRow], path: Path, not_scored: NotScored = None):
     """One panel per season pair: recall@1 against the training places a method was fitted
     on (``split.train_places``, log scale), a line per method at its validation-selected
-    setting for each value, whichever it is (single images; several seeds: their mean);
-    the legend beside the last panel."""
+    setting for each value, whichever it is (single images; several seeds: their mean), its
+    95% interval as whiskers (several seeds: from their lowest bound to their highest); a
+    colour per method and objective of its own (``palette.curve_styles``), the y axis
+    fitted to what is drawn; a point ``not_scored`` gives a reason for is an x at the
+    panel's foot, its reason under the panel. The legend beside the last panel."""
     shortest = min(r.ds for r in rows)
     best = [r for r in selected_rows(rows) if r.ds == shortest and training_places(r) is not None]
-    pairs = list(dict.fromkeys(r.season_pair for r in best))  # sweep order
-    style = styles(best, curve_label)
-    fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs) + 2, 3.8), squeeze=False)
+    missing = not_scored or {}
+    pairs = list(dict.fromkeys([*(r.season_pair for r in best), *(k[0] for k in missing)]))
+    style = curve_styles([(r.method, r.objective) for r in best] + [k[1:3] for k in missing])
+    ticks = sorted({training_places(r) for r in best} | {k[3] for k in missing})
+    fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs) + 2, 4.4), squeeze=False)
     for ax, pair in zip(axes[0], pairs, strict=True):
-        _recall_lines(ax, best, pair, style, curve_label, training_places)
-        ax.set(
-            title=pair,
-            xlabel="training places a season (log scale)",
-            ylabel="recall@1",
-            ylim=(0, 1.02),
-            xscale="log",
-        )
-        ticks = sorted({training_places(r) for r in best})
+        drawn = _curve_lines(ax, [r for r in best if r.season_pair == pair], style)
+        low = _fit_y(ax, drawn)
+        _mark_missing(ax, {k: v for k, v in missing.items() if k[0] == pair}, style)
+        ax.set(title=pair, xlabel="training places a season (log scale)", xscale="log")
+        ax.set_ylabel("recall@1" + (f" (axis from {low:.2f}, not 0)" if low > 0 else ""))
         ax.set_xticks(ticks, [str(t) for t in ticks])
+        ax.set_xlim(ticks[0] / 1.25, ticks[-1] * 1.25)
         ax.minorticks_off()
         ax.grid(alpha=0.3)
     axes[0][-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     _save(fig, path)
+
+
+def _nudge(index: int, count: int) -> float:
+    """A factor on the x of line ``index`` of ``count``: their whiskers side by side."""
+    return 1.025 ** (index - (count - 1) / 2)
+
+
+def _curve_lines(ax, rows: list[ResultRow], style: dict) -> list[float]:
+    """A line per ``style`` label with rows on ``ax``: mean recall@1 at each value of
+    training places, the 95% interval as whiskers. Returns every value drawn."""
+    drawn = []
+    for i, (name, line) in enumerate(style.items()):
+        by_x: dict[int, list[ResultRow]] = {}
+        for r in (r for r in rows if curve_label(r) == name):
+            by_x.setdefault(training_places(r), []).append(r)
+        if not by_x:
+            continue
+        x = sorted(by_x)
+        y = np.array([_mean(by_x[v], "recall_at_1") for v in x])
+        low = np.array([min(r.recall_at_1_ci_low for r in by_x[v]) for v in x])
+        high = np.array([max(r.recall_at_1_ci_high for r in by_x[v]) for v in x])
+        whiskers = np.nan_to_num(np.stack([y - low, high - y]), nan=0.0).clip(min=0.0)
+        nudged = np.array(x) * _nudge(i, len(style))
+        ax.errorbar(
+            nudged,
+            y,
+            yerr=whiskers,
+            marker="o",
+            markersize=4,
+            capsize=2,
+            label=name,
+            elinewidth=0.8,
+            **line,
+        )
+        drawn += [*y, *low[~np.isnan(low)], *high[~np.isnan(high)]]
+    return drawn
+
+
+def _fit_y(ax, values: list[float]) -> float:
+    """The y axis around ``values`` (recall@1 and its intervals), a margin below for the
+    points not scored; within 0 and 1. Returns its lower end."""
+    top, bottom = (max(values), min(values)) if values else (1.0, 0.0)
+    margin = max(0.04, 0.08 * (top - bottom))
+    low = max(0.0, bottom - 1.5 * margin)
+    low = 0.0 if low < 0.05 else low  # not worth a broken axis
+    ax.set_ylim(low, min(1.02, top + margin))
+    return low
+
+
+def _mark_missing(ax, missing: NotScored, style: dict) -> None:
+    """An x at the panel's foot in the line's colour for each point not scored, and under
+    the panel a line per point saying why."""
+    names, notes = list(style), []
+    bottom, top = ax.get_ylim()
+    y = bottom + 0.03 * (top - bottom)
+    for (_, method, objective, places), why in sorted(missing.items()):
+        name = model_label(method, objective, "")
+        line = style[name]
+        x = places * _nudge(names.index(name), len(names))
+        shown = name in ax.get_legend_handles_labels()[1]
+        ax.plot(
+            [x],
+            [y],
+            marker="x",
+            markersize=7,
+            color=line["color"],
+            linestyle="none",
+            label=None if shown else name,  # a line never scored: its entry in the legend
+        )
+        ax.annotate(
+            "not scored",
+            (x, y),
+            xytext=(0, 6),
+            textcoords="offset points",
+            fontsize=6,
+            ha="center",
+            color=line["color"],
+        )
+        notes.append(f"\u00d7 {name} at {places} places: not scored: {why}")
+    if notes:
+        text = "\n".join(textwrap.fill(n, 70, subsequent_indent="   ") for n in notes)
+        ax.text(0.0, -0.2, text, transform=ax.transAxes, fontsize=6.5, va="top")
