@@ -96,15 +96,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tolerance", type=int, default=1, help="correct within +-n frames")
     args = parser.parse_args(argv)
     seasons = [s.strip() for s in args.seasons.split(",")]
+    missing = [s for s in seasons if not (args.root / s).is_dir()]
+    problem = None
     if len(seasons) != 2:
-        raise SystemExit(f"--seasons={args.seasons}: name two seasons, database first")
-    if args.out.exists():
-        raise SystemExit(f"{args.out} exists: name a new folder (nothing is overwritten)")
-    try:
-        print(lay_out(args.root, args.out, seasons, args.split, args.query_step, args.tolerance))
-    except (UserError, FileNotFoundError) as err:
-        raise SystemExit(str(err)) from None
-    return 0
+        problem = f"--seasons={args.seasons}: name two seasons, database first"
+    elif missing:
+        problem = (
+            f"{args.root} has no folder {missing[0]}/: ROOT holds one folder of numbered frames "
+            f"per season ({', '.join(seasons)}), e.g. ../shared/data/nordland_dev, or "
+            "runs/halves/tuning once the halves are laid out"
+        )
+    elif args.out.exists():
+        problem = f"{args.out} exists: name a new folder (nothing is overwritten)"
+    if problem is None:
+        try:
+            layout = (args.split, args.query_step, args.tolerance)
+            print(lay_out(args.root, args.out, seasons, *layout))
+            return 0
+        except (UserError, FileNotFoundError) as err:
+            problem = str(err)
+    print(f"error: {problem}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

@@ -333,7 +333,7 @@ def test_sequences_of_a_benchmark_follow_its_file_order(route, tmp_path):
     assert "a match is correct within ground_truth_new.npy" in table
 
 
-def test_the_halves_script_lays_out_a_route_and_a_benchmark_that_share_no_place(tmp_path):
+def test_the_halves_script_lays_out_a_route_and_a_benchmark_that_share_no_place(tmp_path, capsys):
     """benchmarks/halves.py: the tuning route holds frames up to the split, the reporting
     benchmark the rest, read back by the suite's own readers; its ground truth is every
     reference within the tolerance of each query's frame, by the definition."""
@@ -359,5 +359,7 @@ def test_the_halves_script_lays_out_a_route_and_a_benchmark_that_share_no_place(
     for n, frame in enumerate(queries):
         row = truth.indices[truth.indptr[n] : truth.indptr[n + 1]]
         assert [refs[j] for j in row] == [f for f in refs if abs(f - frame) <= 1]
-    with pytest.raises(SystemExit, match="exists"):
-        halves.main([str(root), str(out)])
+    assert halves.main([str(root), str(out)]) == 2  # nothing is overwritten
+    assert "exists: name a new folder" in capsys.readouterr().err
+    assert halves.main([str(tmp_path / "nowhere"), str(tmp_path / "other")]) == 2
+    assert "has no folder summer/" in capsys.readouterr().err

@@ -6,7 +6,7 @@ declarations the runner reads instead of checking names (``vpr_jax.methods.contr
 JAX-free: config validates ``methods=[...]`` against the table before JAX loads; the plan
 imports the objects (``experiments.resolve``). Adding a built-in: a module with its
 ``Settings`` and ``method``, and one line in ``BUILTIN`` (docs/methods.md, "Adding a
-built-in method"); its colour follows from its place here.
+built-in method"); its place here gives its hue in the learning-curve figure.
 
 And descriptors computed elsewhere, read from ``.npy`` files
 (``precomputed.<name>.database=PATH``, ``precomputed.<name>.queries=PATH``): each set is a
