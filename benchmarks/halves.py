@@ -25,6 +25,7 @@ refused rather than overwritten.
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import sys
 from pathlib import Path
@@ -86,6 +87,16 @@ def lay_out(root: Path, out: Path, seasons: list[str], split: int, step: int, to
     )
 
 
+MANIFEST = "layout.json"  # what a folder was laid out from: a rerun of the same is a no-op
+
+
+def _laid_out(out: Path) -> dict | None:
+    try:
+        return json.loads((out / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("root", type=Path, help="one folder per season, numbered frames")
@@ -106,12 +117,23 @@ def main(argv: list[str] | None = None) -> int:
             f"per season ({', '.join(seasons)}), e.g. ../shared/data/nordland_dev, or "
             "runs/halves/tuning once the halves are laid out"
         )
-    elif args.out.exists():
+    manifest = {
+        "root": str(args.root.resolve()),
+        "seasons": seasons,
+        "split": args.split,
+        "query_step": args.query_step,
+        "tolerance": args.tolerance,
+    }
+    if problem is None and args.out.exists():
+        if _laid_out(args.out) == manifest:
+            print(f"{args.out} already holds these layouts: nothing to do")
+            return 0
         problem = f"{args.out} exists: name a new folder (nothing is overwritten)"
     if problem is None:
         try:
             layout = (args.split, args.query_step, args.tolerance)
             print(lay_out(args.root, args.out, seasons, *layout))
+            (args.out / MANIFEST).write_text(json.dumps(manifest))
             return 0
         except (UserError, FileNotFoundError) as err:
             problem = str(err)

@@ -359,7 +359,10 @@ def test_the_halves_script_lays_out_a_route_and_a_benchmark_that_share_no_place(
     for n, frame in enumerate(queries):
         row = truth.indices[truth.indptr[n] : truth.indptr[n + 1]]
         assert [refs[j] for j in row] == [f for f in refs if abs(f - frame) <= 1]
-    assert halves.main([str(root), str(out)]) == 2  # nothing is overwritten
+    same = [str(root), str(out), "--split", "20", "--query-step", "3"]
+    assert halves.main(same) == 0  # the same layouts again: nothing to do
+    assert "already holds these layouts" in capsys.readouterr().out
+    assert halves.main([str(root), str(out), "--split", "3"]) == 2  # nothing is overwritten
     assert "exists: name a new folder" in capsys.readouterr().err
     assert halves.main([str(tmp_path / "nowhere"), str(tmp_path / "other")]) == 2
     assert "has no folder summer/" in capsys.readouterr().err
