@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments import resolve
 from experiments.cells import INCOMPLETE, block_length
 from experiments.results_md import Curves, markdown_table, same_models
 from vpr_jax.config import SweepConfig, plain
@@ -22,9 +23,9 @@ from vpr_jax.errors import first_line
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
 from vpr_jax.evaluation.metrics import SCALAR_NAMES, pr_curve
 from vpr_jax.files import atomic_write_text, replace_folder
-from vpr_jax.method_table import METHODS, NAMES, load_object, model_label
+from vpr_jax.method_table import METHODS, NAMES, model_label
 from vpr_jax.methods import settings as method_settings
-from vpr_jax.methods.contract import ROWS, as_method
+from vpr_jax.methods.contract import ROWS
 from vpr_jax.outputs.palette import OBJECTIVE_ORDER, compare_labels, curve_label, label_of
 from vpr_jax.outputs.plots import (
     NotScored,
@@ -152,7 +153,7 @@ def changed_settings(cfg: SweepConfig, methods: Iterable[str]) -> dict[str, str]
     ``whiten=64``."""
     out = {}
     for name in (m for m in NAMES if m in methods):
-        method = as_method(load_object(METHODS[name]), name)
+        method = resolve.load(METHODS[name])
         schema, given = method.settings, getattr(cfg, name)
         if not dataclasses.is_dataclass(schema):
             continue
