@@ -2,15 +2,17 @@
 the encoder, in a folder another pipeline reads without vpr_jax.
 
     python -m experiments.export LOGDIR [out=DIR] [top_k=10] [all_settings=false]
-                                        [overwrite=false]
+                                        [overwrite=false] [plugins=MODULE:NAME,...]
 
 For each pair and each method at its validation-selected setting (every setting with
 ``all_settings=true``) writes ``DIR/<pair>/<method>/`` (default DIR: ``LOGDIR/export``):
 names, descriptors, hloc's ``pairs.txt``, ``scores.csv``, a copy of the saved encoder and a
 README (``vpr_jax.outputs.export`` describes the files). It reads the sweep's data again
 (the same config.yaml, the same images) and encodes them with the saved encoders, the way
-the sweep did. Bad input: one line on stderr, exit code 2, nothing written; each folder is
-written aside and moved into place whole.
+the sweep did. A logdir is read as data: a method of your own that its config.yaml lists is
+imported only when ``plugins=`` names it (as in the sweep's ``methods=``), and only encoder
+folders under the logdir's own checkpoint folder are read. Bad input: one line on stderr,
+exit code 2, nothing written; each folder is written aside and moved into place whole.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from vpr_jax.errors import UserError, exit_code
 
 USAGE = (
     "python -m experiments.export LOGDIR [out=DIR] [top_k=10] [all_settings=false] "
-    "[overwrite=false]"
+    "[overwrite=false] [plugins=MODULE:NAME,...]"
 )
 
 
@@ -33,6 +35,7 @@ class ExportOptions(NamedTuple):
     top_k: int = 10
     all_settings: bool = False
     overwrite: bool = False
+    plugins: tuple[str, ...] = ()  # users' methods to import (module:name, or module)
 
 
 def _flag(key: str, value: str) -> bool:
@@ -48,7 +51,7 @@ def parse_args(argv: list[str]) -> ExportOptions:
         raise UserError(f"name one logdir: {USAGE}")
     logdir = Path(logdirs[0]).expanduser().resolve()
     options = dict(a.split("=", 1) for a in argv if "=" in a)
-    unknown = sorted(set(options) - {"out", "top_k", "all_settings", "overwrite"})
+    unknown = sorted(set(options) - {"out", "top_k", "all_settings", "overwrite", "plugins"})
     if unknown:
         raise UserError(f"unknown option {unknown[0]}: {USAGE}")
     top_k = options.get("top_k", "10")
@@ -61,6 +64,7 @@ def parse_args(argv: list[str]) -> ExportOptions:
         top_k=int(top_k),
         all_settings=_flag("all_settings", options.get("all_settings", "false")),
         overwrite=_flag("overwrite", options.get("overwrite", "false")),
+        plugins=tuple(p for p in options.get("plugins", "").strip("[]").split(",") if p),
     )
 
 
@@ -92,7 +96,14 @@ def _export(argv: list[str]) -> None:
     check_paths(opts)
     from experiments.export_cells import export  # JAX: after the cheap checks
 
-    export(opts.logdir, opts.out, top_k=opts.top_k, all_settings=opts.all_settings, log=print)
+    export(
+        opts.logdir,
+        opts.out,
+        top_k=opts.top_k,
+        all_settings=opts.all_settings,
+        plugins=opts.plugins,
+        log=print,
+    )
 
 
 if __name__ == "__main__":

@@ -22,10 +22,11 @@ from vpr_jax.data.pair import PairData
 from vpr_jax.encoders.saved import FIT_JSON, suite_version
 from vpr_jax.errors import UserError
 from vpr_jax.files import replace_folder
+from vpr_jax.method_table import is_plugin, known_info
 from vpr_jax.methods.descriptors import Descriptors, Part
 from vpr_jax.methods.loading import stored_encoder
 from vpr_jax.outputs import export as files
-from vpr_jax.outputs.logdir import config_yaml, saved_config
+from vpr_jax.outputs.logdir import config_yaml, fitted_root, saved_config
 from vpr_jax.outputs.results import (
     SWEEP_KEYS,
     ResultRow,
@@ -51,18 +52,33 @@ HLOC_USE = (
 SavedEncoders = dict[str, tuple[Path, dict]]  # a cell's run (less ds) -> its fit's folder, served
 
 
-def sweep_config(logdir: Path) -> SweepConfig:
-    """The config a finished sweep in ``logdir`` ran with (its config.yaml), writing there."""
+def sweep_config(logdir: Path, plugins: tuple[str, ...] = ()) -> SweepConfig:
+    """The config a finished sweep in ``logdir`` ran with (its config.yaml), writing there.
+    A user's method it lists that ``plugins`` does not name: UserError, nothing imported."""
     cfg = config_from_dict(saved_config(logdir / "config.yaml"))
+    unnamed = [m for m in cfg.methods if is_plugin(m) and known_info(m, plugins) is None]
+    if unnamed:
+        raise UserError(
+            f"{logdir / 'config.yaml'} lists methods of a user's own, {', '.join(unnamed)}: "
+            "a logdir is data, so nothing was imported; if you trust them, name them: "
+            f"python -m experiments.export {logdir} plugins={','.join(unnamed)}"
+        )
     return dataclasses.replace(cfg, logdir=str(logdir))
 
 
-def saved_encoders(logdir: Path) -> SavedEncoders:
+def saved_encoders(logdir: Path, root: Path) -> SavedEncoders:
     """Each cell's run (less its ds) -> the folder of the fit that serves it and what it
-    serves it with, from the sweep's listing."""
+    serves it with, from the sweep's listing: folders under ``root`` (the logdir's own
+    checkpoint folder) only."""
     out: SavedEncoders = {}
     for entry in read_listing(logdir) if (logdir / "encoders.csv").exists() else []:
-        folder = Path(entry["folder"])
+        folder = Path(entry["folder"]).resolve()
+        if not folder.is_relative_to(root):
+            raise UserError(
+                f"{logdir / 'encoders.csv'} lists the folder {entry['folder']}, outside this "
+                f"logdir's checkpoint folder {root}: nothing read there; a sweep lists only its "
+                "own folders, so use the logdir as the sweep wrote it"
+            )
         if not (folder / FIT_JSON).is_file():
             continue  # moved or deleted since: its cells export without an encoder
         fit = json.loads((folder / FIT_JSON).read_text())
@@ -88,15 +104,24 @@ def folder_name(row: ResultRow, all_settings: bool, data_seed: int) -> str:
     return cell_name(row.method, row.objective, swept, seed) + ds
 
 
-def export(logdir: Path, out: Path, *, top_k: int, all_settings: bool, log: Log) -> Path:
+def export(
+    logdir: Path,
+    out: Path,
+    *,
+    top_k: int,
+    all_settings: bool,
+    log: Log,
+    plugins: tuple[str, ...] = (),
+) -> Path:
     """Every chosen cell of the sweep in ``logdir`` (its validation-selected ones, or every
     one with ``all_settings``) as a folder under ``out``, ``top_k`` matches per query."""
     rows = read_results(logdir / "results.csv")
     chosen = rows if all_settings else selected_rows(rows)
     if not chosen:
         raise UserError(f"logdir {logdir} has no finished cell yet: let the sweep finish")
-    plan = make_plan(sweep_config(logdir), log)
-    encoders = saved_encoders(logdir)
+    cfg = sweep_config(logdir, plugins)
+    encoders = saved_encoders(logdir, fitted_root(cfg, logdir))
+    plan = make_plan(cfg, log)
     for db, query in plan.pairs:
         mine = [r for r in chosen if r.season_pair == f"{db}-{query}"]
         if not mine:
@@ -105,7 +130,7 @@ def export(logdir: Path, out: Path, *, top_k: int, all_settings: bool, log: Log)
         for row in sorted(mine, key=lambda r: r.run):
             name = folder_name(row, all_settings, plan.cfg.seed)
             saved = encoders.get(_single_image_run(row))
-            recall = export_cell(plan, pair, row, saved, out, name, top_k)
+            recall = export_cell(plan, pair, row, saved, out, name, top_k, plugins)
             log(f"{pair.name}/{name}: recall@1 {recall:.3f} (sweep: {row.recall_at_1:.3f})")
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)
     log(f"exported {len(chosen)} cells to {out}")
@@ -113,7 +138,11 @@ def export(logdir: Path, out: Path, *, top_k: int, all_settings: bool, log: Log)
 
 
 def cell_descriptors(
-    plan: Plan, pair: PairData, row: ResultRow, saved: tuple[Path, dict] | None
+    plan: Plan,
+    pair: PairData,
+    row: ResultRow,
+    saved: tuple[Path, dict] | None,
+    plugins: tuple[str, ...] = (),
 ) -> tuple[np.ndarray, np.ndarray]:
     """(database, queries) descriptors of the cell: the saved encoder's output on the
     sweep's (preprocessed) images, called as the sweep called it (a set of outside
@@ -123,7 +152,7 @@ def cell_descriptors(
             f"{row.run}: its saved encoder is missing (logdir's encoders.csv lists none for "
             f"{row.method}): rerun the sweep to save it again"
         )
-    stored = stored_encoder(saved[0], served=saved[1])
+    stored = stored_encoder(saved[0], served=saved[1], plugins=plugins)
     return tuple(
         np.asarray(stored.encode(stored.params, images), np.float32)
         for images in (pair.db, pair.query)
@@ -138,6 +167,7 @@ def export_cell(
     out: Path,
     name: str,
     top_k: int,
+    plugins: tuple[str, ...] = (),
 ) -> float:
     """Write one cell's folder ``out/<pair>/<name>`` (aside, then moved into place), its
     encoder copied from ``folder``; returns the recall@1 of its ``pairs.txt`` (the share of
@@ -145,7 +175,7 @@ def export_cell(
     cfg, staging = plan.cfg, out / INCOMPLETE / pair.name / name
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
-    db, query = cell_descriptors(plan, pair, row, saved)
+    db, query = cell_descriptors(plan, pair, row, saved, plugins)
     folder = saved[0] if saved is not None else None
     desc = Descriptors(
         method=row.method,

@@ -168,7 +168,8 @@ def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -
     }
     methods = resolve.check_training_set(methods, sets, log)
     recorded = _with_effective_settings(cfg, methods)
-    check_same_config(logdir, recorded, lambda saved: resolve.settings_identities(saved))
+    named = tuple(cfg.methods)  # a user's method is imported only when this command names it
+    check_same_config(logdir, recorded, lambda c: resolve.settings_identities(c, named))
     return Plan(
         cfg=recorded,
         logdir=logdir,

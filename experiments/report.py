@@ -19,7 +19,7 @@ from experiments import resolve
 from experiments.cells import INCOMPLETE, block_length
 from experiments.results_md import Curves, markdown_table, same_models
 from vpr_jax.config import SweepConfig, plain
-from vpr_jax.errors import first_line
+from vpr_jax.errors import UserError, first_line
 from vpr_jax.evaluation.bootstrap import Difference, paired_recall_difference
 from vpr_jax.evaluation.metrics import SCALAR_NAMES, pr_curve
 from vpr_jax.files import atomic_write_text, replace_folder
@@ -51,6 +51,7 @@ from vpr_jax.outputs.results import (
 )
 from vpr_jax.outputs.tb import CompareSeries, SummaryCell, write_method_run, write_pair_summary
 from vpr_jax.progress import RunLog
+from vpr_jax.untrusted import check_npy_fits
 
 SUMMARY = "summary"  # logdir/summary/<pair>: each pair's selected cells in one run
 COMPARE = "compare"  # logdir/compare/<method>: a run per method, its tags per pair
@@ -237,7 +238,12 @@ def curve_reader(logdir: Path) -> Curves:
 
     @functools.cache
     def curve(run: str) -> dict[str, np.ndarray]:
-        with np.load(logdir / run / "curve.npz") as z:
+        path = (logdir / run / "curve.npz").resolve()
+        fix = "rerun the sweep into a new logdir=PATH"
+        if not path.is_relative_to(logdir.resolve()):
+            raise UserError(f"{logdir / 'results.csv'} names the run {run}, outside it: {fix}")
+        check_npy_fits(path, str(path), fix)  # a logdir may come from elsewhere
+        with np.load(path, allow_pickle=False) as z:
             return {name: z[name] for name in z.files}
 
     return curve

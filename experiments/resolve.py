@@ -314,12 +314,15 @@ def _fit(r: Resolved, group: list[Combination], objective: str, seed, data_seed,
     )
 
 
-def settings_identities(config: dict) -> dict[str, dict]:
+def settings_identities(config: dict, named: tuple[str, ...]) -> dict[str, dict]:
     """Per method of a config as config.yaml holds it, what of its settings decides its
     cells (``settings.identity``): a logdir may gain methods and axis values, not change
-    the others."""
+    the others. A user's method is imported only when ``named`` (the command's
+    ``methods``) names it: a config.yaml is a file, and a file never imports anything."""
     out = {}
     for entry in config.get("methods", []):
+        if not isinstance(entry, str) or entry not in (*METHODS, *named):
+            continue  # not compared: only methods both runs have are (check_same_config)
         info = info_of(entry)
         if info.plugin:
             given = config.get("plugin", {}).get(info.name, {})

@@ -36,7 +36,8 @@ def main() -> None:
     for entry in (e for e in listing if e["pair"] == only):
         db, query = entry["pair"].split("-")
         pair = pair_data(route, split, db, query, cfg.split.database, cfg.tolerance)
-        encode, params = vpr_jax.load_encoder(entry["folder"])
+        plugins = [m for m in cfg.methods if ":" in m]  # the sweep's methods of the user's
+        encode, params = vpr_jax.load_encoder(entry["folder"], plugins=plugins)
         q, d = np.asarray(encode(params, pair.query)), np.asarray(encode(params, pair.db))
         q = q / np.linalg.norm(q, axis=1, keepdims=True)
         d = d / np.linalg.norm(d, axis=1, keepdims=True)

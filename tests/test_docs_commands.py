@@ -48,7 +48,7 @@ def _configuration(command: str):
     if any("$" in a for a in args if a.startswith("logdir=")):
         return None
     cfg = parse_config(args)
-    methods = {**settings_identities(to_dict(cfg)), **outside_settings(cfg)}
+    methods = {**settings_identities(to_dict(cfg), tuple(cfg.methods)), **outside_settings(cfg)}
     return cfg.logdir, (identity(cfg), methods)
 
 

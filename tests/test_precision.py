@@ -126,7 +126,7 @@ def test_load_encoder_hands_out_the_float32_encoders_the_sweep_scored(swept, mon
     programs = {}
     with jax.default_matmul_precision("bfloat16"):
         for path in folders:
-            encode, params = load_encoder(path)
+            encode, params = load_encoder(path, plugins=["precision_plugin"])  # its module
             programs[path.name] = jaxpr_of(encode, params, images)
     assert n_products(programs) >= len(folders)
     assert not unpinned(programs)

@@ -153,8 +153,9 @@ def test_load_encoder_gives_the_rectified_code_back(rectify_sweep, name, monkeyp
         served = [cell["served"] for cell in json.load(f)["cells"]]
     images = np.random.default_rng(2).random((6, 32, 64), dtype=np.float32)
     for values in served:
-        encode, params = load_encoder(folders[name], **values)
-        encode_plain, params_plain = load_encoder(plain, **values)
+        mine = ["linear_codes:projection"]  # the user's method, named as the sweep named it
+        encode, params = load_encoder(folders[name], plugins=mine, **values)
+        encode_plain, params_plain = load_encoder(plain, plugins=mine, **values)
         z = np.asarray(encode_plain(params_plain, images))
         expected = np.concatenate([np.maximum(z, 0), np.maximum(-z, 0)], axis=1)
         np.testing.assert_allclose(np.asarray(encode(params, images)), expected, atol=1e-5)

@@ -153,6 +153,21 @@ def info_of(entry: str) -> MethodInfo:
     return METHODS[entry]
 
 
+def known_info(reference: str, plugins: tuple[str, ...] = ()) -> MethodInfo | None:
+    """The row of a method a file names (``module:object``), found only by exact name: a
+    built-in's line (or outside descriptors'), or a user's method that ``plugins`` names
+    (its ``module:name`` or its module); None for anything else, which is never imported."""
+    if not isinstance(reference, str):
+        return None
+    for info in (*BUILTIN, outside_info("")):
+        if info.method == reference:
+            return info
+    module = reference.rsplit(":", 1)[0]
+    if _PLUGIN.match(reference) and (reference in plugins or module in plugins):
+        return MethodInfo(name=plugin_name(reference), method=reference, plugin=True)
+    return None
+
+
 def load_object(info: MethodInfo) -> Any:
     """The object a row names, imported now; a user's that cannot be: UserError (one line)."""
     module_name, name = info.method.rsplit(":", 1)

@@ -26,6 +26,7 @@ from vpr_jax.errors import UserError
 from vpr_jax.files import atomic_open
 from vpr_jax.progress import Log, interactive, track
 from vpr_jax.shapes import MAX_PIXELS
+from vpr_jax.untrusted import check_npy_fits
 
 VIDEO_EXTENSIONS = tuple(".mp4 .avi .mkv .mov .webm .m4v .mpg .mpeg .wmv .flv .ts".split())
 
@@ -97,6 +98,7 @@ def _write_cache(path: Path, frames: np.ndarray, ids: np.ndarray) -> None:
 def _load_cache(path: Path) -> tuple[np.ndarray, np.ndarray]:
     fix = "delete it and run again to rebuild it from the video"
     try:
+        check_npy_fits(path, f"video cache {path}", fix)  # nothing claimed past its bytes
         with np.load(path, allow_pickle=False) as data:
             if set(data.files) != {"frames", "frame_ids"}:
                 raise UserError(

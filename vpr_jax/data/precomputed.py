@@ -25,6 +25,7 @@ import numpy as np
 
 from vpr_jax.data.images import list_images, relative_names
 from vpr_jax.errors import UserError
+from vpr_jax.untrusted import check_npy_fits
 
 SIDES = ("database", "queries")
 PICKLE = b"\x80"  # the first byte of a pickle (protocol 2 and later)
@@ -47,6 +48,7 @@ def open_descriptors(path: str | Path, key: str) -> np.ndarray:
             what = "a .npz archive" if magic.startswith(b"PK") else "not a .npy file"
             problem = pickled if magic.startswith(PICKLE) else f"{where} is {what}"
             raise UserError(f"{problem}: {SAVE_HINT}")
+        check_npy_fits(path, where, SAVE_HINT)  # a header claiming more than the file holds
         array = np.load(path, mmap_mode="r", allow_pickle=False)
     except ValueError:  # an object array inside a .npy file
         raise UserError(f"{pickled}: {SAVE_HINT}") from None

@@ -3,8 +3,9 @@
 
 The ground-truth file is what VPR-Bench writes: a numpy object array with one row per query,
 ``(query_index, [ref_index, ...])``, indices into the two folders' images sorted by file
-name (Python's ``sorted``, as VPR-Bench lists them). It is a pickle; read it only from a
-source you trust (``np.load(..., allow_pickle=True)``). Queries missing from the file have no
+name (Python's ``sorted``, as VPR-Bench lists them). The file is a pickle, read without
+pickle's power (``vpr_jax.untrusted.read_object_array``): numbers, lists and arrays of them
+are rebuilt, anything else it names is refused unrun. Queries missing from the file have no
 correct reference (they count against recall@1, as in VPR-Bench). Images of any size and
 colour are read as 32x64 grey like every source.
 """
@@ -22,6 +23,7 @@ from vpr_jax.data.images import list_images, note_colour, read_images, relative_
 from vpr_jax.errors import UserError
 from vpr_jax.progress import Log
 from vpr_jax.shapes import MAX_PIXELS
+from vpr_jax.untrusted import read_object_array
 
 GROUND_TRUTH = "ground_truth_new.npy"
 LAYOUT = "ref/, query/ and ground_truth_new.npy (VPR-Bench's layout)"
@@ -75,20 +77,15 @@ def _ground_truth(path: Path, n_query: int, n_ref: int, root: Path) -> list[list
     )
     if not path.is_file():
         raise UserError(f"{path} is missing: data.source=vpr_bench reads {LAYOUT}; {fix}")
-    try:
-        table = np.load(path, allow_pickle=True)
-    except (OSError, ValueError, EOFError) as err:
-        raise UserError(f"{path} cannot be read as a numpy file ({err}): {fix}") from None
+    table = read_object_array(path, str(path), fix)
+    if table.ndim == 0:
+        raise UserError(f"{path} holds one value, not a table of rows: {fix}")
     rows: list[list[int]] = [[] for _ in range(n_query)]
     seen = set()
     for r, row in enumerate(table):
-        try:
-            q = int(row[0])
-            refs = [int(j) for j in np.atleast_1d(np.asarray(row[1])).ravel()]
-        except (TypeError, ValueError, IndexError):
-            raise UserError(
-                f"{path} row {r} is not (query_index, [ref_index, ...]): {fix}"
-            ) from None
+        q, refs = _row(row)
+        if q is None or refs is None:
+            raise UserError(f"{path} row {r} is not (query_index, [ref_index, ...]): {fix}")
         if not 0 <= q < n_query:
             raise UserError(
                 f"{path} row {r} names query image {q}, but {root / 'query'} "
@@ -107,3 +104,29 @@ def _ground_truth(path: Path, n_query: int, n_ref: int, root: Path) -> list[list
         seen.add(q)
         rows[q] = refs
     return rows
+
+
+def _index(value) -> int | None:
+    """An index as the file holds it (a Python or numpy integer, or a whole float), or None."""
+    if isinstance(value, float | np.floating) and float(value).is_integer():
+        return int(value)
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+        return None
+    return int(value)
+
+
+def _row(row) -> tuple[int | None, list[int] | None]:
+    """A row's query index and reference indices (None where they are not that): only
+    integers, a list or tuple of them or a 1-d integer array, looked at one level deep."""
+    if not isinstance(row, list | tuple | np.ndarray) or len(row) != 2:
+        return None, None
+    q, refs = row
+    if isinstance(refs, np.ndarray) and refs.ndim <= 1 and refs.dtype.kind in "iu":
+        return _index(q), [int(j) for j in np.atleast_1d(refs)]
+    if isinstance(refs, np.ndarray) and refs.ndim == 1 and refs.dtype.hasobject:
+        refs = list(refs)
+    if not isinstance(refs, list | tuple):
+        single = _index(refs)  # one reference written as a bare number
+        return _index(q), None if single is None else [single]
+    found = [_index(j) for j in refs]
+    return _index(q), None if None in found else found

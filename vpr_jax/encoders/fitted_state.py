@@ -3,10 +3,14 @@ saved with orbax and restored in the structure it was saved in.
 
 Orbax restores a tree without a target as plain dicts and lists, so the tree's skeleton is
 kept beside its arrays (``skeleton.json``): containers by kind, a NamedTuple or a registered
-dataclass by its importable class (a dataclass's static fields, ``metadata={"static":
-True}``, as JSON), each leaf by its index among the flat ``leaf_NNN`` arrays orbax holds.
-Restoring rebuilds the skeleton, gives orbax the target of every leaf's shape and dtype,
-and puts the arrays back in their places. Python numbers become 0-d arrays.
+dataclass by its class's name (``module:qualname``; a dataclass's static fields,
+``metadata={"static": True}``, as JSON), each leaf by its index among the flat ``leaf_NNN``
+arrays orbax holds, with its shape and dtype. Restoring looks every class the skeleton names
+up in a table the caller gives (``types``: the suite's own state types and those of the
+methods the user named), never imports one: a name not in it is refused before anything is
+read or called. The arrays the skeleton claims are checked against memory before orbax
+reads them; then orbax gets the target of every leaf's shape and dtype, and the arrays are
+put back in their places. Python numbers become 0-d arrays.
 
 Writes are whole or absent: the new folder is written aside and moved into place.
 
@@ -21,11 +25,10 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import importlib
 import json
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +39,21 @@ import orbax.checkpoint as ocp
 from vpr_jax.encoders.checkpoints import as_os_error, orbax_noise_held
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.files import replace_folder
+from vpr_jax.untrusted import check_claim, claimed_bytes
 
 SKELETON, ARRAYS, SIZES = "skeleton.json", "arrays", "sizes.json"
+CONTAINERS = ("none", "leaf", "dict", "items", "list", "tuple")
+CLASSES = ("namedtuple", "dataclass")
+
+
+def type_name(kind: type) -> str:
+    """How a skeleton names a class, and how a table of state types finds it."""
+    return f"{kind.__module__}:{kind.__qualname__}"
+
+
+class NotAState(ValueError):
+    """A skeleton that asks for what its table does not hold, or is not one ``_skeleton``
+    writes."""
 
 
 def _skeleton(tree: Any, leaves: list[np.ndarray]) -> Any:
@@ -45,15 +61,14 @@ def _skeleton(tree: Any, leaves: list[np.ndarray]) -> Any:
     if tree is None:
         return {"none": None}
     if isinstance(tree, tuple) and hasattr(tree, "_fields"):  # a NamedTuple
-        kind = type(tree)
         return {
-            "namedtuple": f"{kind.__module__}:{kind.__qualname__}",
+            "namedtuple": type_name(type(tree)),
             "fields": {f: _skeleton(getattr(tree, f), leaves) for f in tree._fields},
         }
     if dataclasses.is_dataclass(tree) and not isinstance(tree, type):
-        kind, fields = type(tree), dataclasses.fields(tree)
+        fields = dataclasses.fields(tree)
         return {
-            "dataclass": f"{kind.__module__}:{kind.__qualname__}",
+            "dataclass": type_name(type(tree)),
             "fields": {
                 f.name: _skeleton(getattr(tree, f.name), leaves)
                 for f in fields
@@ -86,9 +101,8 @@ def _skeleton(tree: Any, leaves: list[np.ndarray]) -> Any:
 def _static(value: Any) -> Any:
     """A static field's value as JSON data: numbers, text, tuples, NamedTuples of them."""
     if isinstance(value, tuple) and hasattr(value, "_fields"):
-        kind = type(value)
         return {
-            "namedtuple": f"{kind.__module__}:{kind.__qualname__}",
+            "namedtuple": type_name(type(value)),
             "fields": {f: _static(getattr(value, f)) for f in value._fields},
         }
     if isinstance(value, list | tuple):
@@ -96,60 +110,80 @@ def _static(value: Any) -> Any:
     return value
 
 
-def _from_static(data: Any) -> Any:
+def _from_static(data: Any, types: Mapping[str, type]) -> Any:
     if isinstance(data, dict) and "tuple" in data:
-        return tuple(_from_static(v) for v in data["tuple"])
+        return tuple(_from_static(v, types) for v in data["tuple"])
     if isinstance(data, dict) and "namedtuple" in data:
-        return _import(data["namedtuple"])(
-            **{f: _from_static(v) for f, v in data["fields"].items()}
-        )
+        fields = {f: _from_static(v, types) for f, v in data["fields"].items()}
+        return _known(data["namedtuple"], types)(**fields)
     return data
 
 
-def _import(path: str) -> Any:
-    module, name = path.split(":")
-    found = importlib.import_module(module)
-    for part in name.split("."):
-        found = getattr(found, part)
-    return found
+def _known(name: Any, types: Mapping[str, type]) -> type:
+    if not isinstance(name, str) or name not in types:
+        raise NotAState(f"it names the type {name!r}, which is no fitted state this suite knows")
+    return types[name]
 
 
-def _rebuild(skeleton: Any, leaves: dict[str, Any]) -> Any:
+def _rebuild(skeleton: Any, leaves: dict[str, Any], types: Mapping[str, type]) -> Any:
     (kind, value), *_ = skeleton.items()
     if kind == "none":
         return None
     if kind == "leaf":
         return leaves[f"leaf_{value:03d}"]
     if kind == "dict":
-        return {k: _rebuild(v, leaves) for k, v in value.items()}
+        return {k: _rebuild(v, leaves, types) for k, v in value.items()}
     if kind == "items":
-        return {k: _rebuild(v, leaves) for k, v in value}
+        return {k: _rebuild(v, leaves, types) for k, v in value}
     if kind in ("list", "tuple"):
-        items = [_rebuild(v, leaves) for v in value]
+        items = [_rebuild(v, leaves, types) for v in value]
         return items if kind == "list" else tuple(items)
-    fields = {f: _rebuild(v, leaves) for f, v in skeleton["fields"].items()}
-    static = {f: _from_static(v) for f, v in skeleton.get("static", {}).items()}
-    return _import(value)(**fields, **static)
+    fields = {f: _rebuild(v, leaves, types) for f, v in skeleton["fields"].items()}
+    static = {f: _from_static(v, types) for f, v in skeleton.get("static", {}).items()}
+    return _known(value, types)(**fields, **static)
 
 
-def _targets(skeleton: Any, out: dict) -> dict:
-    """Every leaf's shape and dtype, as orbax's restore target."""
-    if "leaf" in skeleton:
+def _check(skeleton: Any, types: Mapping[str, type], out: dict) -> dict:
+    """Every leaf's shape and dtype (orbax's restore target), after checking that the
+    skeleton is one ``_skeleton`` writes and names only classes of ``types`` (NotAState)."""
+    if not isinstance(skeleton, dict) or not skeleton:
+        raise NotAState(f"it holds {type(skeleton).__name__} where a node belongs")
+    kind = next(iter(skeleton))
+    if kind not in (*CONTAINERS, *CLASSES):
+        raise NotAState(f"it holds a node of kind {kind!r}")
+    if kind in CLASSES:
+        _known(skeleton[kind], types)
+        _check_static(skeleton.get("static", {}), types)
+        children = skeleton["fields"].values()
+    elif kind == "leaf":
+        if not isinstance(skeleton["leaf"], int):
+            raise NotAState(f"it numbers a leaf {skeleton['leaf']!r}")
+        claimed_bytes(skeleton["shape"], skeleton["dtype"])  # counts and numbers only
         out[f"leaf_{skeleton['leaf']:03d}"] = jax.ShapeDtypeStruct(
             tuple(skeleton["shape"]), np.dtype(skeleton["dtype"])
         )
         return out
-    if "fields" in skeleton:  # a NamedTuple
-        children = list(skeleton["fields"].values())
-    elif "dict" in skeleton:
-        children = list(skeleton["dict"].values())
-    elif "items" in skeleton:
+    elif kind == "dict":
+        children = skeleton["dict"].values()
+    elif kind == "items":
         children = [child for _, child in skeleton["items"]]
     else:  # list, tuple or none
-        children = next(iter(skeleton.values())) or []
+        children = skeleton[kind] or []
     for child in children:
-        _targets(child, out)
+        _check(child, types, out)
     return out
+
+
+def _check_static(data: Any, types: Mapping[str, type]) -> None:
+    """A dataclass's static values: JSON data, tuples of it and NamedTuples of ``types``."""
+    if isinstance(data, dict):
+        if "namedtuple" in data:
+            _known(data["namedtuple"], types)
+        for value in data.values():
+            _check_static(value, types)
+    elif isinstance(data, list):
+        for value in data:
+            _check_static(value, types)
 
 
 @contextlib.contextmanager
@@ -219,18 +253,34 @@ def save_state(folder: Path, state: Any, files: dict[str, str] | None = None) ->
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def restore_state(folder: Path) -> Any:
-    """The state ``save_state`` wrote, in its structure (numpy arrays as leaves). A folder
-    that holds none, or whose arrays are cut short: UserError naming it."""
+def restore_state(folder: Path, types: Mapping[str, type]) -> Any:
+    """The state ``save_state`` wrote, in its structure (numpy arrays as leaves), its classes
+    found in ``types`` (``type_name`` -> class). A folder that holds none, whose skeleton
+    names a class not in ``types``, whose arrays claim more than memory or are cut short:
+    UserError naming it, before anything is read or called."""
     folder = Path(folder).expanduser().resolve()
     try:
         skeleton = json.loads((folder / SKELETON).read_text())
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, RecursionError) as err:
         raise UserError(
-            f"{folder} holds no fitted state ({SKELETON}: {err}): point at a folder a sweep "
-            "saved (python -m experiments.encoders LOGDIR lists them)"
+            f"{folder} holds no fitted state ({SKELETON}: {first_line(err)}): point at a "
+            "folder a sweep saved (python -m experiments.encoders LOGDIR lists them)"
         ) from None
-    targets = _targets(skeleton, {})
+    try:
+        targets = _check(skeleton, types, {})
+    except NotAState as err:
+        raise UserError(
+            f"{folder / SKELETON} is refused, nothing read or run: {err}; load only folders "
+            "a sweep saved, naming the method of your own that saved one "
+            "(load_encoder(folder, plugins=['module:name']))"
+        ) from None
+    except (KeyError, TypeError, ValueError, AttributeError, RecursionError) as err:
+        raise UserError(
+            f"{folder / SKELETON} is not a fitted state's skeleton ({first_line(err)}): "
+            "rerun the sweep that saved it (delete the folder first)"
+        ) from None
+    claimed = sum(int(np.prod(t.shape)) * t.dtype.itemsize for t in targets.values())
+    check_claim(claimed, str(folder / SKELETON), "load only folders a sweep saved")
     damage = _damage(folder) if targets else None  # found before orbax reads (see above)
     leaves = {}
     try:
@@ -246,4 +296,10 @@ def restore_state(folder: Path) -> Any:
             f"{folder} has a damaged or incomplete fitted state ({damage}): "
             "rerun the sweep that saved it (delete the folder first)"
         )
-    return _rebuild(skeleton, leaves)
+    try:
+        return _rebuild(skeleton, leaves, types)
+    except (KeyError, TypeError, ValueError, AttributeError) as err:  # other fields, say
+        raise UserError(
+            f"{folder / SKELETON} does not fit the state types of this suite "
+            f"({first_line(err)}): rerun the sweep that saved it"
+        ) from None

@@ -11,6 +11,7 @@ here, float64 in the sweep: the descriptors agree to about 1e-5 relative).
 from __future__ import annotations
 
 import functools
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -24,8 +25,12 @@ from vpr_jax.encoders import checkpoints
 from vpr_jax.encoders.fitted_state import restore_state
 from vpr_jax.encoders.saved import ENCODER_JSON, FIT_JSON, STATE, read_description
 from vpr_jax.errors import UserError
-from vpr_jax.method_table import MethodInfo, load_object
+from vpr_jax.method_table import known_info, load_object
+from vpr_jax.methods.state_types import state_types
 from vpr_jax.precision import with_float32_products
+from vpr_jax.untrusted import check_claim
+
+Plugins = tuple[str, ...]  # users' methods named to be imported: module:name, or module
 
 
 def _preprocess(description: dict) -> Callable[[jax.Array], jax.Array]:
@@ -62,9 +67,13 @@ def _checkpointed_model(folder: Path):
     meta = checkpoints.read_meta(folder)
     try:
         spec = ae.spec_from_json(meta["spec"])
+        image_shape = tuple(int(n) for n in meta["image_shape"])
+        shapes = jax.eval_shape(lambda: ae.build(spec, jax.random.key(0), image_shape)[1])
     except (KeyError, TypeError, ValueError) as err:
         raise UserError(f"{folder} holds no auto-encoder this suite knows ({err})") from None
-    graphdef, like = ae.build(spec, jax.random.key(0), tuple(meta["image_shape"]))
+    claimed = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes))
+    check_claim(claimed, f"{folder}'s model", "load only checkpoints a sweep or fit wrote")
+    graphdef, like = ae.build(spec, jax.random.key(0), image_shape)
     model_encode = ae.make_encode(graphdef)
     return (lambda params, images: model_encode(params, images)), checkpoints.restore_model(
         folder, like
@@ -112,9 +121,34 @@ class StoredEncoder(NamedTuple):
     preprocess: Callable[[jax.Array], jax.Array]
 
 
-def stored_encoder(folder: str | Path, served: dict | None = None, **asked) -> StoredEncoder:
-    """The parts ``load_encoder`` composes (see there for ``asked``); ``served``: the served
-    values to encode with, as fit.json lists a cell's (the export's)."""
+def _method_of(description: dict, folder: Path, plugins: Plugins):
+    """The method a folder's description names and the table of state types its state may
+    be made of, found by exact name: a built-in, or a user's method ``plugins`` names.
+    Anything else: UserError, nothing imported."""
+    reference = description.get("method")
+    info = known_info(reference, plugins)
+    if info is None:
+        raise UserError(
+            f"{folder / ENCODER_JSON} names the method {reference!r}, not one of vpr_jax's: "
+            "nothing imported; if it is a method of your own you trust, name it: "
+            f"load_encoder(folder, plugins=[{reference!r}])"
+        )
+    try:
+        method = load_object(info)
+    except (ImportError, AttributeError):
+        raise UserError(
+            f"{folder} needs {reference}, which this vpr_jax lacks: update it"
+        ) from None
+    module = sys.modules[info.method.rsplit(":", 1)[0]]
+    return method, state_types((module,) if info.plugin else ())
+
+
+def stored_encoder(
+    folder: str | Path, served: dict | None = None, plugins: Plugins = (), **asked
+) -> StoredEncoder:
+    """The parts ``load_encoder`` composes (see there for ``asked`` and ``plugins``);
+    ``served``: the served values to encode with, as fit.json lists a cell's (the
+    export's)."""
     folder = Path(folder).expanduser().resolve()
     if not (folder / FIT_JSON).exists() and checkpoints.has_checkpoint(folder):
         encode, params = _checkpointed_model(folder)  # a model trained without a sweep
@@ -123,29 +157,20 @@ def stored_encoder(folder: str | Path, served: dict | None = None, **asked) -> S
         folder = _chosen_folder(folder)
     description = read_description(folder)
     served = _served(description, asked, folder) if served is None else dict(served)
-    reference = str(description.get("method"))
-    info = MethodInfo(
-        name=str(description.get("name")),
-        method=reference,
-        plugin=not reference.startswith("vpr_jax."),
-    )
-    try:
-        method_encode = load_object(info).encode
-    except (ImportError, AttributeError):
-        raise UserError(
-            f"{folder} needs {reference}, which this vpr_jax lacks: update it"
-        ) from None
+    plugins = (plugins,) if isinstance(plugins, str) else tuple(plugins)
+    method, types = _method_of(description, folder, plugins)
+    method_encode = method.encode
     return StoredEncoder(
         # as the sweep scored it: a user's products that state no precision at float32
         encode=with_float32_products(
             functools.partial(lambda fn, p, x: fn(p, x, **served), method_encode)
         ),
-        params=jax.tree.map(jnp.asarray, restore_state(folder / STATE)),
+        params=jax.tree.map(jnp.asarray, restore_state(folder / STATE, types)),
         preprocess=_preprocess(description),
     )
 
 
-def load_encoder(folder: str | Path, **served):
+def load_encoder(folder: str | Path, *, plugins: Plugins = (), **served):
     """``(encode_fn, params)`` of a folder a sweep saved: ``encode_fn(params, images) -> (n,
     d)`` is pure and jitted (use it in your own jitted code, vmap it, differentiate through
     it); ``params`` is the fitted state. ``served``: a value of a setting one fit served to
@@ -153,8 +178,13 @@ def load_encoder(folder: str | Path, **served):
     the sweep ran); not given or None: the one chosen on the validation places.
     ``<pair>/<model>`` without a folder of that name (ica, whose fits are ``ica_k005``, ...,
     or a model with swept settings) gives the fit chosen on the validation places. A
-    checkpoint folder of ``fit_autoencoder`` (no sweep around it) loads too."""
-    stored = stored_encoder(folder, **served)
+    checkpoint folder of ``fit_autoencoder`` (no sweep around it) loads too.
+
+    A folder is read as data only: its method and the classes of its state are found by
+    exact name among vpr_jax's own; a method of your own (``methods=[...,module:name]`` in
+    the sweep) is imported only when ``plugins`` names it, ``plugins=["module:name"]`` (or
+    its module). Anything else a folder asks for is refused in one line, nothing run."""
+    stored = stored_encoder(folder, plugins=plugins, **served)
     encode, pre = stored.encode, stored.preprocess
 
     @jax.jit

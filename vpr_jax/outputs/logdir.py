@@ -109,7 +109,14 @@ def saved_config(path: Path) -> dict:
             f"{path} is not a sweep config ({type(saved).__name__}), so the logdir "
             "cannot be resumed safely: use a new logdir=PATH"
         ) from None
-    saved = OmegaConf.to_container(saved)
+    saved = OmegaConf.to_container(saved)  # interpolations kept as written, unresolved
+    where = _interpolation(saved)
+    if where is not None:
+        raise UserError(
+            f"{path} holds an interpolation at {where} (a value with ${{...}}), which would "
+            "read this machine's environment or other keys: a sweep never writes one, so "
+            "nothing was resolved; use the logdir a sweep wrote, or a new logdir=PATH"
+        )
     found = saved.pop("format", None)
     if found != FORMAT:
         raise UserError(
@@ -117,6 +124,22 @@ def saved_config(path: Path) -> dict:
             f"writes {FORMAT}): use a new logdir=PATH"
         )
     return saved
+
+
+def _interpolation(data, key: str = "") -> str | None:
+    """The first key of ``data`` whose value holds an OmegaConf interpolation (``${...}``:
+    an environment variable, another key, a resolver), or None."""
+    if isinstance(data, dict):
+        items = data.items()
+    elif isinstance(data, list):
+        items = ((str(i), v) for i, v in enumerate(data))
+    else:
+        return key if isinstance(data, str) and "${" in data else None
+    for name, value in items:
+        found = _interpolation(value, f"{key}.{name}" if key else str(name))
+        if found is not None:
+            return found
+    return None
 
 
 def prepare_logdir(logdir: Path) -> None:
