@@ -406,3 +406,31 @@ def _class_names(skeleton) -> set[str]:
     if isinstance(skeleton, list):
         return set().union(*(_class_names(v) for v in skeleton))
     return set()
+
+
+PLUGIN_STATE = """
+from typing import NamedTuple
+
+class Edges(NamedTuple):
+    mean: object
+"""
+
+
+def test_a_named_methods_state_types_are_rebuilt_and_no_others(tmp_path, monkeypatch):
+    """A NamedTuple at the top level of a user's module is rebuilt when the caller names
+    the module, and refused when nobody did."""
+    import importlib
+
+    from vpr_jax.encoders.fitted_state import restore_state, save_state
+    from vpr_jax.methods.state_types import state_types
+
+    (tmp_path / "their_states.py").write_text(PLUGIN_STATE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("their_states")
+    try:
+        save_state(tmp_path / "state", module.Edges(np.arange(3.0)))
+        _refused(lambda: restore_state(tmp_path / "state", state_types()), "their_states:Edges")
+        state = restore_state(tmp_path / "state", state_types((module,)))
+        assert type(state) is module.Edges and list(state.mean) == [0.0, 1.0, 2.0]
+    finally:
+        sys.modules.pop("their_states", None)
