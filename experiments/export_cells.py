@@ -77,7 +77,8 @@ def saved_encoders(logdir: Path, root: Path) -> SavedEncoders:
             raise UserError(
                 f"{logdir / 'encoders.csv'} lists the folder {entry['folder']}, outside this "
                 f"logdir's checkpoint folder {root}: nothing read there; a sweep lists only its "
-                "own folders, so use the logdir as the sweep wrote it"
+                "own folders: run the export from the folder the sweep ran in (a relative "
+                "train.checkpoint_dir is taken from there), with the logdir as the sweep wrote it"
             )
         if not (folder / FIT_JSON).is_file():
             continue  # moved or deleted since: its cells export without an encoder
