@@ -5,15 +5,15 @@ A cell is (season pair, method, objective, swept settings, sequence length ds, s
 run's name; the objective is the auto-encoders' (empty for the other methods). ``match``
 turns descriptors into each query's top-K database matches: for ds = 1 one blockwise cosine
 pass scores every cell's feature suffix at once (a removed-PC count's); for ds > 1
-sequence matching runs on one suffix. ``save_cell``
-evaluates the matches and writes the cell.
+sequence matching runs on one suffix. ``save_cell`` evaluates the matches and writes the
+cell; ``save_descriptors`` does both for every cell of one fit's descriptors still to do.
 """
 
 from __future__ import annotations
 
 import math
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NamedTuple
 
@@ -309,3 +309,39 @@ def log_cell(log: Log, counter: str, row: ResultRow, warning: str | None, cfg_se
     )
     if warning:
         log(f"warning: {row.season_pair} {row.method}{k_text}: {warning}")
+
+
+def save_descriptors(
+    out: Path,
+    cfg,
+    data: PairData,
+    desc: Descriptors,
+    todo: set[str],
+    mesh: Mesh | None,
+) -> Iterator[tuple[ResultRow, str | None]]:
+    """Match, evaluate and save every cell of these descriptors still to do, part by part
+    and ds by ds; yields (row, the descriptors' warning with their first cell only)."""
+    single = {}  # per part of the pair (test, val), ds = 1 matches of every cell, one pass
+    warning = desc.warning
+
+    def matches(cell: int, ds: int, part: str):
+        if part == "val" and desc.val_db is None:  # outside descriptors of route places
+            return None
+        if ds > 1:
+            return match(desc, data, ds, (desc.starts[cell],), cfg, mesh, part)[0]
+        if part not in single:
+            single[part] = match(desc, data, 1, desc.starts, cfg, mesh, part)
+        return single[part][cell]
+
+    for cell, p in enumerate(desc.parts):
+        for ds in cfg.sequence_lengths:
+            if run_name(data.name, p.run, ds) not in todo:
+                continue
+            start = None
+            if desc.start_query is not None:  # a trained model's start, same queries
+                of_start = desc._replace(db=desc.start_db, query=desc.start_query)
+                start = match(of_start, data, ds, (desc.starts[cell],), cfg, mesh)[0]
+            found = CellMatches(matches(cell, ds, "test"), matches(cell, ds, "val"), start)
+            row = save_cell(out, cfg, data, desc, cell, ds, found)
+            yield row, warning
+            warning = None

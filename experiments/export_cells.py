@@ -14,8 +14,8 @@ import numpy as np
 
 from experiments.cells import INCOMPLETE, match, run_name
 from experiments.encoders import read_listing
+from experiments.fitting import load_pair
 from experiments.plan import Plan, make_plan
-from experiments.run import load_pair
 from vpr_jax.command_line import config_from_dict
 from vpr_jax.config import SweepConfig
 from vpr_jax.data.pair import PairData

@@ -6,7 +6,8 @@ state (``vpr_jax.encoders.saved``), then encodes the database, the queries and t
 validation places (blocked, warm timing), checks the descriptors and yields them: once for
 every cell of a method whose served values are feature suffixes (pca's counts, one matching
 pass), once per cell otherwise. A user's method that raises, or whose encode gives other
-than one finite row per image, stops the sweep with one line naming it.
+than one finite row per image, stops the sweep with one line naming it. ``load_pair``
+makes the pair's data that every fit of it reads.
 """
 
 from __future__ import annotations
@@ -25,9 +26,10 @@ from jax.sharding import Mesh
 from experiments.plan import Plan
 from experiments.resolve import Fit, Served
 from experiments.saving import save_state
-from vpr_jax.data.pair import PairData, with_train_places
+from vpr_jax.data.pair import PairData, benchmark_pair, pair_data, with_train_places
 from vpr_jax.encoders import pca as pca_math
 from vpr_jax.errors import UserError, first_line
+from vpr_jax.evaluation.protocol import describe_protocol, fingerprint, protocol_record
 from vpr_jax.host_arrays import release_free_memory
 from vpr_jax.method_table import MethodInfo
 from vpr_jax.methods import pca
@@ -53,7 +55,7 @@ from vpr_jax.methods.precomputed import Outside
 from vpr_jax.methods.settings import as_dict
 from vpr_jax.outputs.tb import TrainingRun
 from vpr_jax.precision import with_float32_products
-from vpr_jax.progress import Log
+from vpr_jax.progress import Log, RunLog
 
 
 class PairRun(NamedTuple):
@@ -315,3 +317,20 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
         ),
         warning=warning,
     )
+
+
+def load_pair(plan: Plan, db: str, query: str) -> PairData:
+    """The images and ground truth of one pair, of the route or the benchmark, with the
+    fingerprint of its protocol."""
+    cfg = plan.cfg
+    if plan.benchmark is not None:
+        data = benchmark_pair(plan.benchmark, plan.route, plan.split, cfg)
+    else:
+        data = pair_data(plan.route, plan.split, db, query, cfg.split.database, cfg.tolerance)
+    return data._replace(protocol=fingerprint(protocol_record(data, plan.benchmark is not None)))
+
+
+def log_protocol(plan: Plan, data: PairData, log: RunLog) -> None:
+    """One line for a pair loaded to be run: its protocol's fingerprint and what it is."""
+    what = describe_protocol(data, plan.benchmark is not None)
+    log(f"protocol {data.name} {data.protocol}: {what}")

@@ -3,8 +3,9 @@
 Per pair, each fit of each method (``experiments.resolve``) with a cell still to do is
 fitted, kept and encoded the same way for every method (``experiments.fitting``); its cells
 (served values x sequence lengths) go to ``experiments.cells``: matched, evaluated and
-written once per cell, as each one ends. ``experiments.sweep`` validates everything it can
-first and imports this module only then.
+written once per cell, as each one ends. With ``cluster.address`` each fit is a task on a
+Ray cluster instead, and this process writes what it made (``experiments.cluster``).
+``experiments.sweep`` validates everything it can first and imports this module only then.
 """
 
 from __future__ import annotations
@@ -18,27 +19,16 @@ from typing import NamedTuple
 import jax
 from jax.sharding import Mesh
 
-from experiments.cells import (
-    INCOMPLETE,
-    CellMatches,
-    log_cell,
-    match,
-    run_name,
-    save_cell,
-    validation_scores,
-)
-from experiments.fitting import PairRun, describe_fit
+from experiments.cells import INCOMPLETE, log_cell, run_name, save_descriptors, validation_scores
+from experiments.fitting import PairRun, describe_fit, load_pair, log_protocol
 from experiments.plan import Plan
 from experiments.report import COMPARE, SUMMARY, run_steps, write_report
 from experiments.resolve import Fit, Served
 from experiments.saving import describe_saved
-from vpr_jax.data.pair import PairData, benchmark_pair, pair_data
 from vpr_jax.errors import UserError
 from vpr_jax.evaluation.metrics import SCALAR_NAMES
-from vpr_jax.evaluation.protocol import describe_protocol, fingerprint, protocol_record
 from vpr_jax.files import atomic_write_text
 from vpr_jax.host_arrays import release_free_memory
-from vpr_jax.methods.descriptors import Descriptors
 from vpr_jax.outputs.logdir import ENCODERS_CSV, config_yaml, fitted_root, lock_logdir
 from vpr_jax.outputs.results import (
     SWEEP_KEYS,
@@ -152,12 +142,21 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
         [f"metrics/{k}" for k in SCALAR_NAMES] + [f"timing/{k}" for k in TIMING_NAMES],
     )
     finished = len(cells) - len(todo)
+    if cfg.cluster.address is not None:  # each fit a task on the cluster, written here
+        from experiments.cluster import run_fits
+
+        rows = run_fits(plan, todo, log, out)
+    else:
+        rows = (
+            found
+            for db, query in plan.pairs
+            for found in _run_pair(plan, db, query, todo, log, out, mesh)
+        )
     with Bar(len(todo), "sweep cells") as bar:
-        for db, query in plan.pairs:
-            for row, warning in _run_pair(plan, db, query, todo, log, out, mesh):
-                finished += 1
-                bar.advance()
-                log_cell(log, f"[{finished}/{len(cells)}]", row, warning, cfg.seed)
+        for row, warning in rows:
+            finished += 1
+            bar.advance()
+            log_cell(log, f"[{finished}/{len(cells)}]", row, warning, cfg.seed)
     failed = write_report(out, cfg, log)
     failed += run_steps({ENCODERS_CSV: lambda: describe_saved(out, cfg)}, log)
     shutil.rmtree(out / INCOMPLETE, ignore_errors=True)  # empty once every cell moved out
@@ -209,61 +208,8 @@ def _run_pair(
         parts = tuple(p for p in fit.served if left(fit, p))
         if parts:
             for desc in describe_fit(fit, parts, pair_run()):
-                yield from _save_descriptors(out, cfg, pair_run().data, desc, todo, mesh)
+                yield from save_descriptors(out, cfg, pair_run().data, desc, todo, mesh)
                 # The cells are saved: drop the descriptors before the next fit and
                 # encoding, so two methods' descriptors are never held at once.
                 del desc
                 release_free_memory()
-
-
-def load_pair(plan: Plan, db: str, query: str) -> PairData:
-    """The images and ground truth of one pair, of the route or the benchmark, with the
-    fingerprint of its protocol."""
-    cfg = plan.cfg
-    if plan.benchmark is not None:
-        data = benchmark_pair(plan.benchmark, plan.route, plan.split, cfg)
-    else:
-        data = pair_data(plan.route, plan.split, db, query, cfg.split.database, cfg.tolerance)
-    return data._replace(protocol=fingerprint(protocol_record(data, plan.benchmark is not None)))
-
-
-def log_protocol(plan: Plan, data: PairData, log: RunLog) -> None:
-    """One line for a pair loaded to be run: its protocol's fingerprint and what it is."""
-    what = describe_protocol(data, plan.benchmark is not None)
-    log(f"protocol {data.name} {data.protocol}: {what}")
-
-
-def _save_descriptors(
-    out: Path,
-    cfg,
-    data: PairData,
-    desc: Descriptors,
-    todo: set[str],
-    mesh: Mesh | None,
-) -> Iterator[tuple[ResultRow, str | None]]:
-    """Match, evaluate and save every cell of these descriptors still to do, part by part
-    and ds by ds; yields (row, the descriptors' warning with their first cell only)."""
-    single = {}  # per part of the pair (test, val), ds = 1 matches of every cell, one pass
-    warning = desc.warning
-
-    def matches(cell: int, ds: int, part: str):
-        if part == "val" and desc.val_db is None:  # outside descriptors of route places
-            return None
-        if ds > 1:
-            return match(desc, data, ds, (desc.starts[cell],), cfg, mesh, part)[0]
-        if part not in single:
-            single[part] = match(desc, data, 1, desc.starts, cfg, mesh, part)
-        return single[part][cell]
-
-    for cell, p in enumerate(desc.parts):
-        for ds in cfg.sequence_lengths:
-            if run_name(data.name, p.run, ds) not in todo:
-                continue
-            start = None
-            if desc.start_query is not None:  # a trained model's start, same queries
-                of_start = desc._replace(db=desc.start_db, query=desc.start_query)
-                start = match(of_start, data, ds, (desc.starts[cell],), cfg, mesh)[0]
-            found = CellMatches(matches(cell, ds, "test"), matches(cell, ds, "val"), start)
-            row = save_cell(out, cfg, data, desc, cell, ds, found)
-            yield row, warning
-            warning = None

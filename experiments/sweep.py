@@ -39,6 +39,10 @@ def run_sweep(cfg: SweepConfig, given: frozenset[str] = frozenset()) -> Path:
     from experiments.run import run_cells  # JAX, Flax, orbax: once the cheap checks pass
 
     compile_cache.use(cfg.compile_cache, log)  # before the fits, encoders and matcher compile
+    if cfg.cluster.address is not None:
+        from experiments import cluster
+
+        cluster.connect(cfg.cluster, log)  # nothing written before it answers
 
     try:
         return run_cells(plan, log)
@@ -47,6 +51,9 @@ def run_sweep(cfg: SweepConfig, given: frozenset[str] = frozenset()) -> Path:
         if err.detail:  # e.g. the traceback of a user's method: for the run log only
             log.record(err.detail)
         raise
+    finally:
+        if cfg.cluster.address is not None:
+            cluster.disconnect()
 
 
 class Terminated(KeyboardInterrupt):

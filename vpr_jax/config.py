@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from vpr_jax import method_table, presets
-from vpr_jax.errors import UserError
+from vpr_jax.compute_config import ClusterConfig, MatchingConfig, MeshConfig
+from vpr_jax.compute_config import check as _check
 from vpr_jax.shapes import IMAGE_SHAPE, MAX_PIXELS
 
 # The names the config accepts, each list written once here and read by the code that acts
@@ -35,14 +36,8 @@ PREPROCESSES = ("none", "patchnorm")
 PR_CONVENTIONS = ("vpr_bench", "has_match", "vpr_tutorial")
 # matching.precision: the matcher's products at float32, or the platform's fastest (TF32 on
 # recent NVIDIA GPUs; vpr_jax.precision).
-MATCHING_PRECISIONS = ("float32", "default")
 # train.* keys that say where and how often models are saved, not what is trained.
 TRAIN_BOOKKEEPING = ("checkpoint_dir", "checkpoint_every_s")
-
-
-def _check(ok: bool, message: str) -> None:
-    if not ok:
-        raise UserError(message)
 
 
 @dataclass(frozen=True)
@@ -256,53 +251,6 @@ class TrainConfig:
 
 
 @dataclass(frozen=True)
-class MatchingConfig:
-    block_size: int = 4096  # database images scored at once; bounds memory on long routes
-    # float32: every score as a CPU computes it; default: the platform's fastest products
-    # (TF32 on recent NVIDIA GPUs: faster, close scores can swap). Encoders are float32 always.
-    precision: str = "float32"
-
-    def __post_init__(self):
-        _check(self.block_size >= 1, f"matching.block_size={self.block_size} must be >= 1")
-        _check(
-            self.precision in MATCHING_PRECISIONS,
-            f"matching.precision={self.precision} is not "
-            f"{' or '.join(MATCHING_PRECISIONS)}: use float32 (every score as a CPU computes "
-            "it) or default (the platform's fastest products)",
-        )
-
-
-@dataclass(frozen=True)
-class MeshConfig:
-    """Devices the work is split over (``vpr_jax.sharding``): PCA samples, the matching
-    database and each training batch. Results equal one device's up to float rounding."""
-
-    devices: int = 0  # 0: every device JAX sees (one: plain single-device code); N: first N
-    # Several processes (one per host): jax.distributed.initialize() before anything else.
-    # Leave the three below unset under SLURM, Open MPI and other launchers JAX detects.
-    distributed: bool = False
-    coordinator: str | None = None  # host:port of process 0, e.g. 10.0.0.1:1234
-    num_processes: int | None = None
-    process_id: int | None = None  # 0 .. num_processes - 1; process 0 writes the logdir
-
-    def __post_init__(self):
-        _check(
-            self.devices >= 0,
-            f"mesh.devices={self.devices} is negative: use 0 (all devices), 1, or a count",
-        )
-        explicit = (self.coordinator, self.num_processes, self.process_id)
-        _check(
-            self.distributed or all(v is None for v in explicit),
-            "mesh.coordinator/num_processes/process_id need mesh.distributed=true",
-        )
-        _check(
-            all(v is None for v in explicit) or None not in explicit,
-            "set all of mesh.coordinator, mesh.num_processes and mesh.process_id, or none "
-            "(a launcher JAX detects, such as SLURM, fills them in)",
-        )
-
-
-@dataclass(frozen=True)
 class PatchNormConfig:
     """``preprocess=patchnorm``: each image's non-overlapping size x size patches are
     z-scored (openSeqSLAM's patch normalisation), then mapped into [0, 1] (see
@@ -417,6 +365,7 @@ class SweepKnobs:
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     bootstrap: BootstrapConfig = field(default_factory=BootstrapConfig)
     mesh: MeshConfig = field(default_factory=MeshConfig)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
     tb: TensorBoardConfig = field(default_factory=TensorBoardConfig)
     # Settings of your own methods: plugin.<name>.<key>=<value> reaches its fit as key=value.
     plugin: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -455,6 +404,12 @@ class SweepKnobs:
         _check(
             self.seeds is None or (len(seeds) > 0 and len(set(seeds)) == len(seeds)),
             f"seeds={list(seeds)} is empty or repeats a seed: name each once, e.g. seeds=[0,1,2]",
+        )
+        _check(
+            self.cluster.address is None or not self.mesh.distributed,
+            "cluster.address and mesh.distributed=true are two ways to use several machines: "
+            "fits over a Ray cluster (cluster.address) or one cell over every host "
+            "(mesh.distributed), not both; drop one (docs/scaling.md)",
         )
 
     def _check_precomputed(self) -> None:

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Float
 
-from vpr_jax.config import MATCHING_PRECISIONS
+from vpr_jax.compute_config import MATCHING_PRECISIONS
 
 FLOAT32 = lax.Precision.HIGHEST  # float32 products on every device (TF32 and bf16 passes: no)
 

@@ -27,7 +27,7 @@ from jax.sharding import AxisType, Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from vpr_jax import host_arrays
-from vpr_jax.config import MeshConfig
+from vpr_jax.compute_config import MeshConfig
 from vpr_jax.errors import UserError, first_line
 
 AXIS = "data"

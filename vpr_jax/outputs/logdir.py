@@ -38,6 +38,7 @@ EXTENDABLE_KEYS = (
     "tb",
     "matching",
     "mesh",
+    "cluster",
 )
 # Keys inside a group that add cells, like the sweep keys: the ds axis. The group's other keys
 # change the numbers of its cells.

@@ -1,0 +1,134 @@
+"""A sweep's fits over a Ray cluster (``cluster.address``): a real two-node cluster
+(``ray.cluster_utils.Cluster``, started once and shut down even when a check fails) gives
+results.csv the one-process run's rows in every non-timing column, and a user's method that
+fails there is the same one line as in one process. An address where nothing answers, Ray
+missing and two ways to use several machines at once are one line each, nothing written."""
+
+import csv
+import sys
+import textwrap
+
+import pytest
+
+from tests.conftest import assert_one_line_error, run_here
+
+ROUTE = [
+    "data.n_frames=240",
+    "split.n_train=100",
+    "split.n_test=50",
+    "split.gap=10",
+    "season_pairs=summer-fall",
+]
+ARGS = [
+    *ROUTE,
+    "methods=[raw,pca,ica,lda,fae]",
+    "removed_pcs=[0,5]",
+    "ica.n_components=8",
+    "fae.hidden=16",
+    "fae.epochs=2",
+    "fae.objective=[reconstruct]",
+]
+TIMING = {"fit_seconds", "encode_ms_per_image"}
+BROKEN = """
+class broken:
+    @staticmethod
+    def fit(train, aligned, key):
+        raise RuntimeError("deliberately broken")
+
+    @staticmethod
+    def encode(state, images):
+        return images
+"""
+
+
+def _rows(logdir) -> dict[str, dict]:
+    with open(logdir / "results.csv", newline="") as f:
+        return {row["run"]: row for row in csv.DictReader(f)}
+
+
+@pytest.fixture
+def two_nodes(tmp_path, monkeypatch):
+    """A head and a second node of one CPU each; its workers import the user's module
+    folder ``tmp_path/mine`` as a user's would (PYTHONPATH). Shut down however the test
+    ends."""
+    from ray.cluster_utils import Cluster
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "broken_methods.py").write_text(textwrap.dedent(BROKEN))
+    monkeypatch.setenv("PYTHONPATH", f"{mine}:{sys.path[0]}")
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        yield cluster, mine
+    finally:
+        cluster.shutdown()
+
+
+def test_a_two_node_cluster_gives_the_one_process_rows(two_nodes, tmp_path):
+    cluster, mine = two_nodes
+    alone = run_here(*ARGS, f"logdir={tmp_path / 'alone'}")
+    assert alone.returncode == 0, alone.stderr[-2000:]
+    spread = run_here(*ARGS, f"logdir={tmp_path / 'spread'}", f"cluster.address={cluster.address}")
+    assert spread.returncode == 0, spread.stderr[-2000:]
+    one, many = _rows(tmp_path / "alone"), _rows(tmp_path / "spread")
+    assert set(one) == set(many) and len(one) == 7  # raw, pca and ica at 2 counts, lda, fae
+    for run, row in one.items():
+        for column in set(row) - TIMING:
+            assert many[run][column] == row[column], (run, column)
+    log = (tmp_path / "spread" / "sweep.log").read_text()
+    assert "cluster: " in log and "2 node(s)" in log and "fitted on node" in log
+    # Every fitted state reached the driver's checkpoint folder, every run its logdir.
+    folders = sorted(
+        p.name for p in (tmp_path / "checkpoints" / "spread" / "summer-fall").iterdir()
+    )
+    assert folders == sorted(
+        p.name for p in (tmp_path / "checkpoints" / "alone" / "summer-fall").iterdir()
+    )
+    for run in one:
+        assert (tmp_path / "spread" / run / "curve.npz").is_file(), run
+    # A user's method that fails on a worker: the one line it is in one process.
+    broken = run_here(
+        *ROUTE,
+        "methods=[raw,broken_methods:broken]",
+        f"logdir={tmp_path / 'broken'}",
+        f"cluster.address={cluster.address}",
+        path=[mine],
+    )
+    assert_one_line_error(broken, "method broken", "deliberately broken", "rerun the same command")
+
+
+def test_an_address_where_nothing_answers_is_one_line_and_nothing_written(tmp_path):
+    import socket
+
+    with socket.socket() as s:  # a port of this machine that nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    logdir = tmp_path / "runs"
+    proc = run_here(
+        *ROUTE, "methods=[raw]", f"logdir={logdir}", f"cluster.address=127.0.0.1:{port}"
+    )
+    assert_one_line_error(proc, f"cluster.address=127.0.0.1:{port}", "ray start --head")
+    assert not logdir.exists()
+
+
+def test_ray_missing_is_one_line_naming_the_install(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if it were not installed
+    logdir = tmp_path / "runs"
+    proc = run_here(*ROUTE, "methods=[raw]", f"logdir={logdir}", "cluster.address=local")
+    assert_one_line_error(proc, "needs Ray", '.[cluster]"')
+    assert not logdir.exists()
+
+
+def test_a_cluster_and_distributed_jax_at_once_are_refused(tmp_path):
+    logdir = tmp_path / "runs"
+    proc = run_here(
+        *ROUTE,
+        "methods=[raw]",
+        f"logdir={logdir}",
+        "cluster.address=local",
+        "mesh.distributed=true",
+    )
+    assert_one_line_error(proc, "cluster.address and mesh.distributed=true", "not both")
+    assert not logdir.exists()
