@@ -3,7 +3,9 @@ machines").
 
 The unit of work is a fit with all its cells, as ``experiments.run`` groups them: a Ray task
 (``_fit_task``, a plain function of its arguments) receives the plan without its route and
-devices, the pair's data through Ray's object store (put once per pair), the fit and its
+devices, the pair's data through Ray's object store (put once per pair), the pair's shared
+PCA fit where its method uses one (made once per pair and settings by a task of its own,
+``_shared_task``, which Ray runs before the fits that take its result), the fit and its
 cells still to do, and what the driver holds of the fit's folder (an auto-encoder's training
 checkpoints, so a resumed fit goes on from them). It fits and scores in a folder of its own
 and returns what it made: the rows, the files of its TensorBoard runs and curves, the
@@ -17,11 +19,14 @@ are those of one process: the same code runs, on the same data.
 from __future__ import annotations
 
 import logging
+import os
 import socket
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
+
+from threadpoolctl import threadpool_limits
 
 from vpr_jax.compute_config import ClusterConfig
 from vpr_jax.errors import UserError, first_line
@@ -117,37 +122,63 @@ def _unpack(files: dict[str, bytes], folder: Path) -> None:
         path.write_bytes(content)
 
 
-def _fit_task(plan, data, fit, parts: tuple, todo: frozenset, held: dict[str, bytes]) -> FitOutput:
-    """One fit and its cells, run in a folder of this worker's own (see the module's
-    docstring); what it made comes back."""
-    from experiments.cells import save_descriptors, validation_scores
-    from experiments.fitting import PairRun, describe_fit
+def _pair_run(plan, data, out: Path, fitted: Path, log, made: dict):
+    """What every fit of the pair shares, as this worker holds it."""
+    from experiments.cells import validation_scores
+    from experiments.fitting import PairRun
+
+    validate = validation_scores(data, plan.cfg, None)
+    return PairRun(plan, data, validate, fitted, out, log, mesh=None, made=made)
+
+
+def _shared_task(plan, data, fit) -> tuple[tuple, Any, list[str]]:
+    """The pair's shared PCA fit that ``fit`` uses, made once for every fit of the pair
+    that uses it: (its key, the fit, what it logged)."""
+    from experiments.fitting import pca_fit, pca_fit_key
     from vpr_jax import compile_cache
 
     lines: list[str] = []
     compile_cache.use(plan.cfg.compile_cache, lines.append)
-    with tempfile.TemporaryDirectory(prefix="vpr_jax-fit-") as tmp:
+    with _blas_as_alone():
+        run = _pair_run(plan, data, Path("."), Path("."), lines.append, {})
+        return pca_fit_key(fit, plan), pca_fit(fit, run), lines
+
+
+def _blas_as_alone():
+    """BLAS (numpy's, and scipy's that JAX's LAPACK calls use) with the threads it takes in
+    a process of its own: Ray holds a worker to its task's CPUs (OMP_NUM_THREADS=1), and
+    eigh and its kin round differently on another count of threads."""
+    import scipy.linalg  # noqa: F401  its BLAS, loaded so that the limit reaches it
+
+    return threadpool_limits(limits=len(os.sched_getaffinity(0)), user_api="blas")
+
+
+def _fit_task(
+    plan, data, fit, parts: tuple, todo: frozenset, held: dict[str, bytes], shared
+) -> FitOutput:
+    """One fit and its cells, run in a folder of this worker's own (see the module's
+    docstring), with the pair's ``shared`` PCA fit where it uses one (``_shared_task``'s
+    output, or None); what it made comes back."""
+    from experiments.cells import save_descriptors
+    from experiments.fitting import describe_fit
+    from vpr_jax import compile_cache
+
+    lines: list[str] = [] if shared is None else list(shared[2])
+    compile_cache.use(plan.cfg.compile_cache, lines.append)
+    made = {} if shared is None else {shared[0]: shared[1]}
+    with _blas_as_alone(), tempfile.TemporaryDirectory(prefix="vpr_jax-fit-") as tmp:
         out, fitted = Path(tmp) / "logdir", Path(tmp) / "fitted"
         out.mkdir()
         _unpack(held, fitted / fit.folder)
-        run = PairRun(
-            plan=plan,
-            data=data,
-            validate=validation_scores(data, plan.cfg, None),
-            fitted_dir=fitted,
-            out=out,
-            log=lines.append,
-            mesh=None,
-            made={},
-        )
-        made = [
+        run = _pair_run(plan, data, out, fitted, lines.append, made)
+        cells = [
             found
             for desc in describe_fit(fit, parts, run)
             for found in save_descriptors(out, plan.cfg, data, desc, set(todo), None)
         ]
         return FitOutput(
-            rows=[row for row, _ in made],
-            warnings=[warning for _, warning in made],
+            rows=[row for row, _ in cells],
+            warnings=[warning for _, warning in cells],
             logdir_files=_pack(out, SKIPPED),
             fitted_files=_pack(fitted / fit.folder),
             lines=lines,
@@ -184,12 +215,13 @@ def run_fits(plan, todo: set[str], log: Log, out: Path) -> Iterator[tuple[Any, s
     import ray
 
     from experiments.cells import run_name
-    from experiments.fitting import load_pair, log_protocol
+    from experiments.fitting import load_pair, log_protocol, pca_fit_key
     from vpr_jax.outputs.logdir import fitted_root
     from vpr_jax.outputs.results import append_results
 
     cfg = plan.cfg
     task = ray.remote(max_retries=RETRIES, retry_exceptions=False)(_fit_task)
+    shared_task = ray.remote(max_retries=RETRIES, retry_exceptions=False)(_shared_task)
     lite = ray.put(plan._replace(route=None, mesh=None, benchmark=None))
     pending: dict = {}
     for db, query in plan.pairs:
@@ -208,21 +240,28 @@ def run_fits(plan, todo: set[str], log: Log, out: Path) -> Iterator[tuple[Any, s
         data = load_pair(plan, db, query)
         log_protocol(plan, data, log)
         data_ref = ray.put(data)
+        shared = {}  # the pair's shared PCA fits, each a task of its own, made once
         for fit, parts in fits:
+            key = pca_fit_key(fit, plan)
+            if key is not None and key not in shared:
+                shared[key] = shared_task.options(num_cpus=1).remote(lite, data_ref, fit)
             folder = fitted_root(cfg, plan.logdir) / pair / fit.folder
             trains = "training" in fit.method.method.needs(fit.settings)
             options = {"num_cpus": 1, "num_gpus": cfg.cluster.gpus_per_fit if trains else 0}
             ref = task.options(**options).remote(
-                lite, data_ref, fit, parts, frozenset(todo), _pack(folder)
+                lite, data_ref, fit, parts, frozenset(todo), _pack(folder), shared.get(key)
             )
             pending[ref] = (pair, fit, folder)
     log(f"cluster: {len(pending)} fit(s) queued")
+    logged: set[str] = set()
     while pending:
         (ready,), _ = ray.wait(list(pending), num_returns=1)
         pair, fit, folder = pending.pop(ready)
         output = _result(ready, pair, fit)
         for line in output.lines:
-            log(line)
+            if line not in logged:  # a shared fit's note comes with each fit that used it
+                log(line)
+                logged.add(line)
         _write_back(output, out, folder)
         log(f"{pair} {fit.folder}: fitted on node {output.node} ({len(pending)} fit(s) left)")
         append_results(out / "results.csv", output.rows)  # after the runs: a row means done

@@ -72,14 +72,25 @@ class PairRun(NamedTuple):
     # and the pair thinned to each ``split.train_places`` value, once made
 
 
-def _pca_fit(fit: Fit, run: PairRun) -> PCAFit:
-    """The pair's shared PCA fit: pca's own cells get it with their settings, every other
-    method with pca's first; made on first use and kept per settings, whichever methods use
-    it, so each user gets what it would get alone."""
-    provider = run.plan.pca
-    own = fit.method.info == provider.info
-    settings = fit.settings if own else provider.combinations[0].settings
-    key = (fit_key(provider.method, settings), fit.train_places)
+def _shared_pca_settings(fit: Fit, plan: Plan) -> Any:
+    """The settings of the shared PCA fit ``fit`` uses: pca's own cells theirs, every other
+    method pca's first."""
+    own = fit.method.info == plan.pca.info
+    return fit.settings if own else plan.pca.combinations[0].settings
+
+
+def pca_fit_key(fit: Fit, plan: Plan) -> tuple | None:
+    """Which of the pair's shared PCA fits ``fit`` uses (None: none), by the settings that
+    decide it and the training places."""
+    if "pca_fit" not in fit.method.method.needs(fit.settings):
+        return None
+    return fit_key(plan.pca.method, _shared_pca_settings(fit, plan)), fit.train_places
+
+
+def pca_fit(fit: Fit, run: PairRun) -> PCAFit:
+    """The pair's shared PCA fit: made on first use and kept per ``pca_fit_key``, whichever
+    methods use it, so each user gets what it would get alone."""
+    key, settings = pca_fit_key(fit, run.plan), _shared_pca_settings(fit, run.plan)
     if key not in run.made:
         train = fitted_on(fit, run).train
         n_images, n_pixels = len(train), int(np.prod(train.shape[1:]))
@@ -124,7 +135,7 @@ def resources(fit: Fit, run: PairRun) -> dict[str, Any]:
     needs, data = fit.method.method.needs(fit.settings), run.data
     out: dict[str, Any] = {}
     if "pca_fit" in needs:
-        out["pca_fit"] = _pca_fit(fit, run)
+        out["pca_fit"] = pca_fit(fit, run)
     if "validation" in needs:
         out["validation"] = Validation(
             images=data.val,
