@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import socket
 import tempfile
 from collections.abc import Iterator
@@ -62,6 +63,7 @@ def connect(cluster: ClusterConfig, log: Log) -> None:
         ) from None
     quiet = {"logging_level": logging.WARNING, "log_to_driver": False}
     unreachable = _unreachable(cluster.address)
+    ours = signal.getsignal(signal.SIGTERM)  # Ray's core installs its own, which aborts
     try:
         if unreachable:
             raise ConnectionError(unreachable)
@@ -75,6 +77,9 @@ def connect(cluster: ClusterConfig, log: Log) -> None:
             f"({first_line(err)[:200]}): start one (ray start --head) and give its address "
             "(auto, HOST:PORT or ray://HOST:PORT), use cluster.address=local, or leave it unset"
         ) from None
+    finally:
+        if ours is not None:  # SIGTERM stops the sweep as Ctrl-C does (experiments.sweep)
+            signal.signal(signal.SIGTERM, ours)
     resources = ray.cluster_resources()
     log(
         f"cluster: {cluster.address}, {len(ray.nodes())} node(s), "
