@@ -133,7 +133,16 @@ def _pair_run(plan, data, out: Path, fitted: Path, log, made: dict):
     from experiments.fitting import PairRun
 
     validate = validation_scores(data, plan.cfg, None)
-    return PairRun(plan, data, validate, fitted, out, log, mesh=None, made=made)
+    return PairRun(
+        plan=plan,
+        data=data,
+        validate=validate,
+        fitted_dir=fitted,
+        out=out,
+        log=log,
+        mesh=None,
+        made=made,
+    )
 
 
 def _shared_task(plan, data, fit) -> tuple[tuple, Any, list[str]]:
