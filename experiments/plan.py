@@ -28,7 +28,6 @@ from vpr_jax.data.preprocess import preprocess_benchmark, preprocess_route
 from vpr_jax.data.splits import Split, make_split
 from vpr_jax.errors import UserError
 from vpr_jax.method_table import NAMES as METHOD_NAMES
-from vpr_jax.methods.contract import TrainingSet
 from vpr_jax.outputs.logdir import check_same_config, identity, prepare_logdir
 from vpr_jax.progress import Log
 
@@ -45,7 +44,6 @@ class Plan(NamedTuple):
     methods: tuple[resolve.Resolved, ...] = ()  # cfg.methods loaded, settings checked
     fits: tuple[resolve.Fit, ...] = ()  # every method's fits in each pair, in order
     outside: dict[str, dict[str, OutsideSide]] = {}  # precomputed set -> side -> descriptors
-    training_sets: dict[str, TrainingSet] = {}  # method -> what its checks saw
     pca: resolve.Resolved | None = None  # pca's settings: they shape the pair's shared
     # PCA fit (resolve.pca_settings)
     identity: dict = {}  # the config's part that decides every cell (outputs.logdir)
@@ -180,7 +178,6 @@ def make_plan(cfg: SweepConfig, log: Log, given: frozenset[str] = frozenset()) -
         methods=methods,
         fits=tuple(f for r in methods for f in resolve.fits(r, cfg)),
         outside=read_outside_sets(cfg, data.benchmark, log) if data.benchmark is not None else {},
-        training_sets=sets,
         pca=pca,
         identity=identity(recorded),
         mesh=mesh,
