@@ -32,7 +32,7 @@ from threadpoolctl import threadpool_limits
 from vpr_jax.compute_config import ClusterConfig
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.files import replace_folder
-from vpr_jax.progress import Log
+from vpr_jax.progress import Bar, Log
 
 INSTALL = 'pip install -e ".[cluster]"'
 CONNECT_S = 5  # seconds an address has to answer
@@ -231,7 +231,6 @@ def run_fits(plan, todo: set[str], log: Log, out: Path) -> Iterator[tuple[Any, s
     from experiments.cells import run_name
     from experiments.fitting import load_pair, log_protocol, pca_fit_key
     from vpr_jax.outputs.logdir import fitted_root
-    from vpr_jax.outputs.results import append_results
 
     cfg = plan.cfg
     task = ray.remote(max_retries=RETRIES, retry_exceptions=False)(_fit_task)
@@ -267,7 +266,25 @@ def run_fits(plan, todo: set[str], log: Log, out: Path) -> Iterator[tuple[Any, s
             )
             pending[ref] = (pair, fit, folder)
     log(f"cluster: {len(pending)} fit(s) queued")
-    logged: set[str] = set()
+    with Bar(len(pending), _fits_label(0, len(pending))) as bar:
+        yield from _arrivals(pending, out, log, bar)
+
+
+def _fits_label(done: int, left: int) -> str:
+    """The bar's label: fits done, running (as many as the cluster has CPUs for), queued."""
+    import ray
+
+    running = min(left, int(ray.cluster_resources().get("CPU", 0)) or left)
+    return f"fits: {done} done, {running} running, {left - running} queued"
+
+
+def _arrivals(pending: dict, out: Path, log: Log, bar: Bar):
+    """Each fit's output as it arrives: logged, written, its rows yielded."""
+    import ray
+
+    from vpr_jax.outputs.results import append_results
+
+    done, logged = 0, set()
     while pending:
         (ready,), _ = ray.wait(list(pending), num_returns=1)
         pair, fit, folder = pending.pop(ready)
@@ -279,6 +296,8 @@ def run_fits(plan, todo: set[str], log: Log, out: Path) -> Iterator[tuple[Any, s
         _write_back(output, out, folder)
         log(f"{pair} {fit.folder}: fitted on node {output.node} ({len(pending)} fit(s) left)")
         append_results(out / "results.csv", output.rows)  # after the runs: a row means done
+        done += 1
+        bar.advance(description=_fits_label(done, len(pending)))
         yield from zip(output.rows, output.warnings, strict=True)
 
 

@@ -152,7 +152,8 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
             for db, query in plan.pairs
             for found in _run_pair(plan, db, query, todo, log, out, mesh)
         )
-    with Bar(len(todo), "sweep cells") as bar:
+    # On a cluster the bar is over fits (experiments.cluster): one bar on a terminal at a time
+    with Bar(len(todo) if cfg.cluster.address is None else 0, "sweep cells") as bar:
         for row, warning in rows:
             finished += 1
             bar.advance()

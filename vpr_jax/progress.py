@@ -71,9 +71,10 @@ class Bar:
             self._progress.start()
         return self
 
-    def advance(self, n: int = 1) -> None:
+    def advance(self, n: int = 1, description: str | None = None) -> None:
+        """``n`` more units done; ``description``: the bar's new label, if given."""
         if self._progress is not None:
-            self._progress.advance(self._task, n)
+            self._progress.update(self._task, advance=n, description=description)
 
     def __exit__(self, *exc) -> None:
         if self._progress is not None:
