@@ -5,12 +5,17 @@ fails there is the same one line as in one process. An address where nothing ans
 missing and two ways to use several machines at once are one line each, nothing written."""
 
 import csv
+import os
+import signal
+import subprocess
 import sys
 import textwrap
+import time
+from pathlib import Path
 
 import pytest
 
-from tests.conftest import assert_one_line_error, run_here
+from tests.conftest import PROCESS_TIMEOUT_S, assert_one_line_error, run_here, started
 
 ROUTE = [
     "data.n_frames=240",
@@ -132,3 +137,47 @@ def test_a_cluster_and_distributed_jax_at_once_are_refused(tmp_path):
     )
     assert_one_line_error(proc, "cluster.address and mesh.distributed=true", "not both")
     assert not logdir.exists()
+
+
+def _fit_tasks() -> list[int]:
+    """The process ids of Ray workers running a fit on this machine (``ray::_fit_task``)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(
+                b"ray::_fit_task"
+            ):
+                found.append(int(entry.name))
+        except OSError:
+            continue
+    return found
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_fit_costs_a_retry_not_a_row(two_nodes, tmp_path):
+    """Opt-in (``-m slow``, about a minute): a busy worker SIGKILLed while the sweep runs;
+    Ray runs its fit again and results.csv holds the one-process rows, each cell once."""
+    cluster, _ = two_nodes
+    args = [*ARGS, "fae.epochs=12", "fae.hidden=64", "fae.patience=20"]
+    alone = run_here(*args, f"logdir={tmp_path / 'alone'}")
+    assert alone.returncode == 0, alone.stderr[-2000:]
+    command = [sys.executable, "-m", "experiments.sweep", *args]
+    command += [f"logdir={tmp_path / 'spread'}", f"cluster.address={cluster.address}"]
+    command += [f"train.checkpoint_dir={tmp_path / 'checkpoints'}"]
+    with started(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
+        killed = None
+        while killed is None and proc.poll() is None:
+            busy = _fit_tasks()
+            if busy:
+                time.sleep(1.0)  # well into its fit
+                os.kill(busy[0], signal.SIGKILL)
+                killed = busy[0]
+            time.sleep(0.2)
+        out, err = proc.communicate(timeout=PROCESS_TIMEOUT_S)
+    assert killed is not None and proc.returncode == 0, err[-3000:]
+    one, many = _rows(tmp_path / "alone"), _rows(tmp_path / "spread")
+    runs = [r["run"] for r in csv.DictReader(open(tmp_path / "spread" / "results.csv"))]
+    assert sorted(runs) == sorted(one)  # each cell once
+    for run, row in one.items():
+        for column in set(row) - TIMING:
+            assert many[run][column] == row[column], (run, column)
