@@ -23,6 +23,7 @@ import os
 import signal
 import socket
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -49,6 +50,7 @@ class FitOutput(NamedTuple):
     fitted_files: dict[str, bytes]  # path under the fit's folder -> content
     lines: list[str]  # what the fit logged (notes, training epochs)
     node: str  # the host it ran on
+    seconds: float  # the task's wall time there: the fit, its encodings and its cells
 
 
 def connect(cluster: ClusterConfig, log: Log) -> None:
@@ -177,6 +179,7 @@ def _fit_task(
     from experiments.fitting import describe_fit
     from vpr_jax import compile_cache
 
+    began = time.perf_counter()
     lines: list[str] = [] if shared is None else list(shared[2])
     compile_cache.use(plan.cfg.compile_cache, lines.append)
     made = {} if shared is None else {shared[0]: shared[1]}
@@ -197,6 +200,7 @@ def _fit_task(
             fitted_files=_pack(fitted / fit.folder),
             lines=lines,
             node=socket.gethostname(),
+            seconds=time.perf_counter() - began,
         )
 
 
@@ -294,7 +298,10 @@ def _arrivals(pending: dict, out: Path, log: Log, bar: Bar):
                 log(line)
                 logged.add(line)
         _write_back(output, out, folder)
-        log(f"{pair} {fit.folder}: fitted on node {output.node} ({len(pending)} fit(s) left)")
+        log(
+            f"{pair} {fit.folder}: fitted on node {output.node} in {output.seconds:.1f} s "
+            f"({len(pending)} fit(s) left)"
+        )
         append_results(out / "results.csv", output.rows)  # after the runs: a row means done
         done += 1
         bar.advance(description=_fits_label(done, len(pending)))
