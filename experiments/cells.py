@@ -311,6 +311,15 @@ def log_cell(log: Log, counter: str, row: ResultRow, warning: str | None, cfg_se
         log(f"warning: {row.season_pair} {row.method}{k_text}: {warning}")
 
 
+def parts_left(served: tuple, pair: str, todo: set[str], sequence_lengths) -> tuple:
+    """The parts of a fit (``Served``) with a cell of ``pair`` still to do, at any ds."""
+    return tuple(
+        part
+        for part in served
+        if any(run_name(pair, part.run, ds) in todo for ds in sequence_lengths)
+    )
+
+
 def save_descriptors(
     out: Path,
     cfg,

@@ -232,7 +232,7 @@ def run_fits(plan, todo: set[str], log: Log, out: Path) -> Iterator[tuple[Any, s
     yields (row, warning) per cell as each fit's files are written, in order of arrival."""
     import ray
 
-    from experiments.cells import run_name
+    from experiments.cells import parts_left
     from experiments.fitting import load_pair, log_protocol, pca_fit_key
     from vpr_jax.outputs.logdir import fitted_root
 
@@ -245,11 +245,7 @@ def run_fits(plan, todo: set[str], log: Log, out: Path) -> Iterator[tuple[Any, s
         pair = f"{db}-{query}"
         fits = []
         for fit in plan.fits:
-            parts = tuple(
-                p
-                for p in fit.served
-                if any(run_name(pair, p.run, ds) in todo for ds in cfg.sequence_lengths)
-            )
+            parts = parts_left(fit.served, pair, todo, cfg.sequence_lengths)
             if parts:
                 fits.append((fit, parts))
         if not fits:

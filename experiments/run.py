@@ -19,7 +19,14 @@ from typing import NamedTuple
 import jax
 from jax.sharding import Mesh
 
-from experiments.cells import INCOMPLETE, log_cell, run_name, save_descriptors, validation_scores
+from experiments.cells import (
+    INCOMPLETE,
+    log_cell,
+    parts_left,
+    run_name,
+    save_descriptors,
+    validation_scores,
+)
 from experiments.fitting import PairRun, describe_fit, load_pair, log_protocol
 from experiments.plan import Plan
 from experiments.report import COMPARE, SUMMARY, run_steps, write_report
@@ -185,9 +192,6 @@ def _run_pair(
     cfg, pair = plan.cfg, f"{db}-{query}"
     run = None
 
-    def left(fit, part) -> bool:
-        return any(run_name(pair, part.run, ds) in todo for ds in cfg.sequence_lengths)
-
     def pair_run() -> PairRun:  # built on first use
         nonlocal run
         if run is None:
@@ -206,7 +210,7 @@ def _run_pair(
         return run
 
     for fit in plan.fits:
-        parts = tuple(p for p in fit.served if left(fit, p))
+        parts = parts_left(fit.served, pair, todo, cfg.sequence_lengths)
         if parts:
             for desc in describe_fit(fit, parts, pair_run()):
                 yield from save_descriptors(out, cfg, pair_run().data, desc, todo, mesh)
