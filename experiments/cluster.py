@@ -56,6 +56,8 @@ class FitOutput(NamedTuple):
 def connect(cluster: ClusterConfig, log: Log) -> None:
     """Join (or, for ``local``, start) the Ray cluster ``cluster`` names. Ray missing or a
     cluster that cannot be reached: UserError naming the fix, before anything is written."""
+    # Ray reports usage to its makers by default; a sweep sends nothing off the cluster
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     try:
         import ray
     except ImportError:

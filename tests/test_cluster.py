@@ -62,6 +62,7 @@ def two_nodes(tmp_path, monkeypatch):
     mine.mkdir()
     (mine / "broken_methods.py").write_text(textwrap.dedent(BROKEN))
     monkeypatch.setenv("PYTHONPATH", f"{mine}:{sys.path[0]}")
+    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")  # nothing sent off this machine
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
     try:
         cluster.add_node(num_cpus=1)
