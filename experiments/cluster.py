@@ -131,34 +131,16 @@ def _unpack(files: dict[str, bytes], folder: Path) -> None:
         path.write_bytes(content)
 
 
-def _pair_run(plan, data, out: Path, fitted: Path, log, made: dict):
-    """What every fit of the pair shares, as this worker holds it."""
-    from experiments.cells import validation_scores
-    from experiments.fitting import PairRun
-
-    validate = validation_scores(data, plan.cfg, None)
-    return PairRun(
-        plan=plan,
-        data=data,
-        validate=validate,
-        fitted_dir=fitted,
-        out=out,
-        log=log,
-        mesh=None,
-        made=made,
-    )
-
-
 def _shared_task(plan, data, fit) -> tuple[tuple, Any, list[str]]:
     """The pair's shared PCA fit that ``fit`` uses, made once for every fit of the pair
     that uses it: (its key, the fit, what it logged)."""
-    from experiments.fitting import pca_fit, pca_fit_key
+    from experiments.fitting import pair_run, pca_fit, pca_fit_key
     from vpr_jax import compile_cache
 
     lines: list[str] = []
     compile_cache.use(plan.cfg.compile_cache, lines.append)
     with _blas_as_alone():
-        run = _pair_run(plan, data, Path("."), Path("."), lines.append, {})
+        run = pair_run(plan, data, Path("."), Path("."), lines.append, None)
         return pca_fit_key(fit, plan), pca_fit(fit, run), lines
 
 
@@ -178,7 +160,7 @@ def _fit_task(
     docstring), with the pair's ``shared`` PCA fit where it uses one (``_shared_task``'s
     output, or None); what it made comes back."""
     from experiments.cells import save_descriptors
-    from experiments.fitting import describe_fit
+    from experiments.fitting import describe_fit, pair_run
     from vpr_jax import compile_cache
 
     began = time.perf_counter()
@@ -189,7 +171,7 @@ def _fit_task(
         out, fitted = Path(tmp) / "logdir", Path(tmp) / "fitted"
         out.mkdir()
         _unpack(held, fitted / fit.folder)
-        run = _pair_run(plan, data, out, fitted, lines.append, made)
+        run = pair_run(plan, data, fitted, out, lines.append, None, made)
         cells = [
             found
             for desc in describe_fit(fit, parts, run)

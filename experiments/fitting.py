@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh
 
+from experiments.cells import validation_scores
 from experiments.plan import Plan
 from experiments.resolve import Fit, Served
 from experiments.saving import save_state
@@ -70,6 +71,23 @@ class PairRun(NamedTuple):
     mesh: Mesh | None
     made: dict  # the pair's shared PCA fits, once made, by settings and training places;
     # and the pair thinned to each ``split.train_places`` value, once made
+
+
+def pair_run(
+    plan: Plan, data: PairData, fitted_dir: Path, out: Path, log: Log, mesh, made=None
+) -> PairRun:
+    """A pair's shared part, its validation scorer made for ``mesh``; ``made``: what a
+    fit would otherwise make again (the cluster's shared PCA fit)."""
+    return PairRun(
+        plan=plan,
+        data=data,
+        validate=validation_scores(data, plan.cfg, mesh),
+        fitted_dir=fitted_dir,
+        out=out,
+        log=log,
+        mesh=mesh,
+        made={} if made is None else made,
+    )
 
 
 def _shared_pca_settings(fit: Fit, plan: Plan) -> Any:

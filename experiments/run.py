@@ -25,9 +25,9 @@ from experiments.cells import (
     parts_left,
     run_name,
     save_descriptors,
-    validation_scores,
 )
 from experiments.fitting import PairRun, describe_fit, load_pair, log_protocol
+from experiments.fitting import pair_run as make_pair_run
 from experiments.plan import Plan
 from experiments.report import COMPARE, SUMMARY, run_steps, write_report
 from experiments.resolve import Fit, Served
@@ -197,16 +197,7 @@ def _run_pair(
         if run is None:
             data = load_pair(plan, db, query)
             log_protocol(plan, data, log)  # before the pair's first cell
-            run = PairRun(
-                plan=plan,
-                data=data,
-                validate=validation_scores(data, cfg, mesh),
-                fitted_dir=fitted_root(cfg, plan.logdir) / pair,
-                out=out,
-                log=log,
-                mesh=mesh,
-                made={},
-            )
+            run = make_pair_run(plan, data, fitted_root(cfg, plan.logdir) / pair, out, log, mesh)
         return run
 
     for fit in plan.fits:
