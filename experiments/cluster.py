@@ -28,8 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from threadpoolctl import threadpool_limits
-
+from experiments import cluster_worker
 from vpr_jax.compute_config import ClusterConfig
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.files import replace_folder
@@ -50,6 +49,7 @@ class FitOutput(NamedTuple):
     fitted_files: dict[str, bytes]  # path under the fit's folder -> content
     lines: list[str]  # what the fit logged (notes, training epochs)
     node: str  # the host it ran on
+    cores: tuple[int, ...]  # the cores its worker was held to there (): not pinned
     seconds: float  # the task's wall time there: the fit, its encodings and its cells
 
 
@@ -72,9 +72,11 @@ def connect(cluster: ClusterConfig, log: Log) -> None:
         if unreachable:
             raise ConnectionError(unreachable)
         if cluster.address == "local":
-            ray.init(num_cpus=cluster.workers, include_dashboard=False, **quiet)
+            ray.init(
+                num_cpus=cluster.workers, include_dashboard=False, **quiet, **_worker_env(cluster)
+            )
         else:
-            ray.init(address=cluster.address, **quiet)
+            ray.init(address=cluster.address, **quiet, **_worker_env(cluster))
     except (ConnectionError, RuntimeError, ValueError, TimeoutError) as err:
         raise UserError(
             f"cluster.address={cluster.address}: no Ray cluster could be reached "
@@ -89,6 +91,16 @@ def connect(cluster: ClusterConfig, log: Log) -> None:
         f"cluster: {cluster.address}, {len(ray.nodes())} node(s), "
         f"{resources.get('CPU', 0):g} CPUs, {resources.get('GPU', 0):g} GPUs"
     )
+
+
+def _worker_env(cluster: ClusterConfig) -> dict:
+    """What every worker of this sweep starts with: the cores each is pinned to
+    (``experiments.cluster_worker``), where ``cluster.cores_per_worker`` says; none where
+    fits ask for GPUs (untried: no GPU here)."""
+    share = 0 if cluster.gpus_per_fit > 0 else cluster.cores_per_worker
+    if share is None:
+        return {}
+    return {"runtime_env": {"env_vars": {cluster_worker.SHARE_ENV: str(share)}}}
 
 
 def _unreachable(address: str) -> str | None:
@@ -137,20 +149,11 @@ def _shared_task(plan, data, fit) -> tuple[tuple, Any, list[str]]:
     from experiments.fitting import pair_run, pca_fit, pca_fit_key
     from vpr_jax import compile_cache
 
+    cluster_worker.start()
     lines: list[str] = []
     compile_cache.use(plan.cfg.compile_cache, lines.append)
-    with _blas_as_alone():
-        run = pair_run(plan, data, Path("."), Path("."), lines.append, None)
-        return pca_fit_key(fit, plan), pca_fit(fit, run), lines
-
-
-def _blas_as_alone():
-    """BLAS (numpy's, and scipy's that JAX's LAPACK calls use) with the threads it takes in
-    a process of its own: Ray holds a worker to its task's CPUs (OMP_NUM_THREADS=1), and
-    eigh and its kin round differently on another count of threads."""
-    import scipy.linalg  # noqa: F401  its BLAS, loaded so that the limit reaches it
-
-    return threadpool_limits(limits=len(os.sched_getaffinity(0)), user_api="blas")
+    run = pair_run(plan, data, Path("."), Path("."), lines.append, None)
+    return pca_fit_key(fit, plan), pca_fit(fit, run), lines
 
 
 def _fit_task(
@@ -164,10 +167,11 @@ def _fit_task(
     from vpr_jax import compile_cache
 
     began = time.perf_counter()
+    cluster_worker.start()
     lines: list[str] = [] if shared is None else list(shared[2])
     compile_cache.use(plan.cfg.compile_cache, lines.append)
     made = {} if shared is None else {shared[0]: shared[1]}
-    with _blas_as_alone(), tempfile.TemporaryDirectory(prefix="vpr_jax-fit-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="vpr_jax-fit-") as tmp:
         out, fitted = Path(tmp) / "logdir", Path(tmp) / "fitted"
         out.mkdir()
         _unpack(held, fitted / fit.folder)
@@ -184,6 +188,7 @@ def _fit_task(
             fitted_files=_pack(fitted / fit.folder),
             lines=lines,
             node=socket.gethostname(),
+            cores=cluster_worker.cores(),
             seconds=time.perf_counter() - began,
         )
 
@@ -279,13 +284,18 @@ def _arrivals(pending: dict, out: Path, log: Log, bar: Bar):
                 logged.add(line)
         _write_back(output, out, folder)
         log(
-            f"{pair} {fit.folder}: fitted on node {output.node} in {output.seconds:.1f} s "
+            f"{pair} {fit.folder}: fitted on node {output.node}{_cores_text(output.cores)} "
+            f"in {output.seconds:.1f} s "
             f"({len(pending)} fit(s) left)"
         )
         append_results(out / "results.csv", output.rows)  # after the runs: a row means done
         done += 1
         bar.advance(description=_fits_label(done, len(pending)))
         yield from zip(output.rows, output.warnings, strict=True)
+
+
+def _cores_text(cores: tuple[int, ...]) -> str:
+    return f" (cores {','.join(map(str, cores))})" if cores else " (not pinned)"
 
 
 def _result(ref, pair: str, fit) -> FitOutput:

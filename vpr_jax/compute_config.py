@@ -76,12 +76,20 @@ class ClusterConfig:
     address: str | None = None
     workers: int = 2  # local only: worker processes, one CPU each
     gpus_per_fit: float = 0.0  # what a fit that trains asks of a node's GPUs (0: none)
+    # cores each worker is held to (experiments.cluster_worker); null: a node's cores over
+    # its Ray CPUs; 0: workers not pinned
+    cores_per_worker: int | None = None
 
     def __post_init__(self):
         check(self.workers >= 1, f"cluster.workers={self.workers} must be at least 1")
         check(
             self.gpus_per_fit >= 0,
             f"cluster.gpus_per_fit={self.gpus_per_fit} is negative: use 0 (CPU) or a share",
+        )
+        check(
+            self.cores_per_worker is None or self.cores_per_worker >= 0,
+            f"cluster.cores_per_worker={self.cores_per_worker} is negative: use null (a "
+            "node's cores shared among its workers), 0 (not pinned) or a count",
         )
         check(
             self.address is None or self.address.strip() != "",
