@@ -41,7 +41,7 @@ from vpr_jax.outputs.results import (  # noqa: E402
     choice_order,
     read_results,
     selected_rows,
-    settings_of,
+    swept_of,
 )
 
 ORDER = NAMES  # the method table's order; users' methods after it
@@ -93,7 +93,7 @@ def run_sweep(argv: list[str], in_process: bool = False) -> int:
 
 def _sweep_values(row) -> str:
     """The values of the sweep's keys the row's cell has (its removed count), or ''."""
-    values = settings_of(row)
+    values = swept_of(row)
     return " ".join(str(values[key]) for key in SWEEP_KEYS if key in values)
 
 

@@ -33,9 +33,9 @@ from vpr_jax.outputs.results import (
     ResultRow,
     append_results,
     report_columns,
-    settings_columns,
-    settings_hparams,
     sweep_labels,
+    swept_columns,
+    swept_hparams,
 )
 from vpr_jax.outputs.tb import match_examples, write_cell_run
 from vpr_jax.progress import Log
@@ -146,7 +146,7 @@ def _write_run(
             "season_pair": pair.name,
             "method": desc.method,
             "objective": desc.objective,
-            **settings_hparams(desc.parts[cell].settings),
+            **swept_hparams(desc.parts[cell].swept),
             "ds": float(ds),
             "seed": float(desc.seed),
         },
@@ -274,7 +274,7 @@ def save_cell(
         **_what_was_measured(pair, desc),
         method=desc.method,
         objective=desc.objective,
-        **settings_columns(part.settings),
+        **swept_columns(part.swept),
         ds=ds,
         **ev.scalars(),
         recall_at_1_ci_low=ci.recall_at_1.low,

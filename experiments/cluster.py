@@ -310,8 +310,9 @@ def _result(ref, pair: str, fit) -> FitOutput:
         if isinstance(cause, UserError):
             raise cause from None
         raise UserError(
-            f"fit {pair} {fit.folder} failed on the cluster: {first_line(cause)}: a fault of "
-            "the suite or the method; the finished cells are kept, rerun the same command"
+            f"fit {pair} {fit.folder} failed on node {err.ip} (process {err.pid}): "
+            f"{first_line(cause)}: a fault of the suite or the method; the finished cells "
+            "are kept, rerun the same command"
         ) from None
     except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError) as err:
         raise UserError(

@@ -33,7 +33,7 @@ from vpr_jax.outputs.results import (
     cell_name,
     read_results,
     selected_rows,
-    settings_of,
+    swept_of,
 )
 from vpr_jax.progress import Log
 
@@ -99,7 +99,7 @@ def folder_name(row: ResultRow, all_settings: bool, data_seed: int) -> str:
     unless ``all_settings`` (``pca``, ``pca_k005``, ``fae_cross_season``, ``lda_ds10``)."""
     if all_settings:
         return row.run.split("/", 1)[1]
-    swept = tuple((n, v) for n, v in settings_of(row).items() if n not in SWEEP_KEYS)
+    swept = tuple((n, v) for n, v in swept_of(row).items() if n not in SWEEP_KEYS)
     seed = row.seed if row.seed != data_seed else None
     ds = f"_ds{row.ds:02d}" if row.ds != 1 else ""
     return cell_name(row.method, row.objective, swept, seed) + ds
@@ -182,7 +182,7 @@ def export_cell(
         method=row.method,
         objective=row.objective,
         seed=row.seed,
-        parts=(Part(settings=settings_of(row), run=name),),
+        parts=(Part(swept=swept_of(row), run=name),),
         starts=(0,),
         db=db,
         query=query,
@@ -204,7 +204,7 @@ def export_cell(
         selection = {
             "chosen": saved[1],
             "setting": row.setting,
-            "swept": settings_of(row),
+            "swept": swept_of(row),
             "val_recall_at_1": row.val_recall_at_1,
             "test_recall_at_1": row.recall_at_1,
             "selected": bool(row.selected),
@@ -219,7 +219,7 @@ def export_cell(
 
 
 def _facts(plan: Plan, top_k, pair: PairData, row: ResultRow, folder, recall: float, shape) -> dict:
-    keys = [f"{k}={v}" for k, v in settings_of(row).items() if k in SWEEP_KEYS]
+    keys = [f"{k}={v}" for k, v in swept_of(row).items() if k in SWEEP_KEYS]
     setting = " ".join(x for x in (row.setting, *keys) if x) or "-"
     return {
         "exported from": f"{plan.logdir} (run {row.run})",

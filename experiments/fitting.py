@@ -328,7 +328,7 @@ def _describe(fit, parts, reports, starts, encode, seconds, run: PairRun) -> Des
         method=fit.method.name,
         objective=fit.objective,
         seed=fit.seed,
-        parts=tuple(Part(settings=p.settings, run=p.run) for p in parts),
+        parts=tuple(Part(swept=p.swept, run=p.run) for p in parts),
         starts=starts,
         db=db,
         query=query,

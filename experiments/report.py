@@ -45,8 +45,8 @@ from vpr_jax.outputs.results import (
     largest_places,
     read_results,
     selected_rows,
-    settings_of,
     sweep_labels,
+    swept_of,
     training_places,
 )
 from vpr_jax.outputs.tb import CompareSeries, SummaryCell, write_method_run, write_pair_summary
@@ -349,7 +349,7 @@ def _learning_points(rows: list[ResultRow], pair: str, label: str) -> tuple:
 def _step(row: ResultRow) -> int | None:
     """Where a row sits on the compare view's step axis: the value of the sweep's key it
     has (its removed count), or None for a method without one."""
-    values = settings_of(row)
+    values = swept_of(row)
     return next((int(values[k]) for k in SWEEP_KEYS if k in values), None)
 
 

@@ -66,7 +66,7 @@ class Served(NamedTuple):
     """A cell's part of a fit: what encode is called with, and how the cell is named."""
 
     values: dict[str, Any]  # encode's keyword settings (the served ones)
-    settings: dict[str, Any]  # the cell's swept settings (what tells it from its neighbours)
+    swept: dict[str, Any]  # the cell's swept values, by name (what tells it from its neighbours)
     run: str  # its run's name less the pair and ds: ica_n_components=64_k005, fae_seed1
 
 
@@ -296,7 +296,7 @@ def _fit(r: Resolved, group: list[Combination], objective: str, seed, data_seed,
     served = tuple(
         Served(
             values={n: c.values[n] for n in served_names if n in c.values},
-            settings=dict(c.swept),
+            swept=dict(c.swept),
             run=cell_name(r.name, objective, c.swept, seed_named),
         )
         for c in group

@@ -43,7 +43,7 @@ from vpr_jax.outputs.results import (
     ResultRow,
     cell_key,
     read_results,
-    settings_hparams,
+    swept_hparams,
 )
 from vpr_jax.outputs.tb import write_experiment_config
 from vpr_jax.progress import Bar, Log, RunLog
@@ -81,7 +81,7 @@ class Cell(NamedTuple):
     season_pair: str
     method: str
     objective: str
-    settings: dict  # every swept setting, by name
+    swept: dict  # every swept value, by name
     ds: int
     seed: int
 
@@ -106,7 +106,7 @@ def cell_of(pair: str, fit: Fit, part: Served, ds: int) -> Cell:
         season_pair=pair,
         method=fit.method.name,
         objective=fit.objective,
-        settings=part.settings,
+        swept=part.swept,
         ds=ds,
         seed=fit.seed,
     )
@@ -135,7 +135,7 @@ def _run(plan: Plan, log: RunLog, out: Path, mesh: Mesh | None) -> Path:
         + f", logdir {logdir}"
     )
     cells, todo = _cells_to_do(plan, log)
-    hparams = [settings_hparams(c.settings) for c in cells]
+    hparams = [swept_hparams(c.swept) for c in cells]
     write_experiment_config(
         out,
         {

@@ -27,7 +27,7 @@ from vpr_jax.files import atomic_write_text
 from vpr_jax.method_table import model_name
 from vpr_jax.methods.settings import label as settings_label
 from vpr_jax.outputs.logdir import ENCODERS_CSV, LISTING, fitted_root
-from vpr_jax.outputs.results import ResultRow, read_results, settings_of
+from vpr_jax.outputs.results import ResultRow, read_results, swept_of
 from vpr_jax.sharding import to_host
 
 
@@ -45,7 +45,7 @@ def save_state(fit: Fit, state: Any, cfg: SweepConfig, pair: str, fitted_dir: Pa
         "objective": fit.objective,
         "pair": pair,
         "settings": dict(fit.values),
-        "cells": [{"run": p.run, "settings": p.settings, "served": p.values} for p in fit.served],
+        "cells": [{"run": p.run, "settings": p.swept, "served": p.values} for p in fit.served],
         "seed": fit.seed,
         "preprocessing": describe_preprocessing(
             cfg.preprocess, cfg.patchnorm.size, cfg.patchnorm.rounded
@@ -92,8 +92,8 @@ def describe_encoders(root: Path, rows: list[ResultRow]) -> list[dict]:
                     "model": model_name(fit["name"], fit["objective"]),
                     "chosen": cell["served"],
                     "setting": chosen.setting,
-                    "swept": settings_of(chosen),
-                    "cell": settings_label(tuple(settings_of(chosen).items())),
+                    "swept": swept_of(chosen),
+                    "cell": settings_label(tuple(swept_of(chosen).items())),
                     "kept_epoch": chosen.kept_epoch,
                     "start": chosen.start,
                     "val_recall_at_1": chosen.val_recall_at_1,

@@ -28,7 +28,7 @@ from vpr_jax.config import SplitConfig
 from vpr_jax.data.pair import pair_data, with_train_places
 from vpr_jax.data.route import Route
 from vpr_jax.data.splits import make_split
-from vpr_jax.outputs.results import read_results, settings_of
+from vpr_jax.outputs.results import read_results, swept_of
 
 PAIR = "summer-fall"
 
@@ -210,14 +210,14 @@ def _assert_learning_curve(
     both seasons, each value's own selection; one protocol and test set throughout; the
     learning-curve table and figure."""
     rows = read_results(logdir / "results.csv")
-    values = {(r.method, settings_of(r)["train_places"]) for r in rows}
+    values = {(r.method, swept_of(r)["train_places"]) for r in rows}
     assert values == {(m, p) for m in methods for p in places}
     for r in rows:
-        p = settings_of(r)["train_places"]
+        p = swept_of(r)["train_places"]
         assert f"train_places={p}" in r.setting and r.n_train == 2 * p
     for m in methods:
         for p in places:
-            mine = [r for r in rows if r.method == m and settings_of(r)["train_places"] == p]
+            mine = [r for r in rows if r.method == m and swept_of(r)["train_places"] == p]
             assert sum(r.selected for r in mine) == 1, (m, p)
     assert len({r.protocol for r in rows}) == 1 and len({r.n_test for r in rows}) == 1
     md = (logdir / "results.md").read_text()
@@ -237,7 +237,7 @@ def test_train_places_is_a_learning_curve_in_results_figures_and_tensorboard(cur
     _assert_learning_curve(logdir, PLACES, {"raw", "pca", "fae"})
     rows = read_results(logdir / "results.csv")
     pca = [r for r in rows if r.method == "pca" and r.selected]
-    recall = {settings_of(r)["train_places"]: r.recall_at_1 for r in pca}
+    recall = {swept_of(r)["train_places"]: r.recall_at_1 for r in pca}
     tb = read_run(logdir / "compare" / "pca")
     events = tb.Scalars(f"{PAIR}/by_training_places/recall_at_1")
     assert [e.step for e in events] == sorted(recall) == PLACES
@@ -246,7 +246,7 @@ def test_train_places_is_a_learning_curve_in_results_figures_and_tensorboard(cur
     largest = {
         r.removed_pcs: r.recall_at_1
         for r in rows
-        if r.method == "pca" and settings_of(r)["train_places"] == max(PLACES)
+        if r.method == "pca" and swept_of(r)["train_places"] == max(PLACES)
     }
     events = tb.Scalars(f"{PAIR}/recall_at_1")
     assert {e.step: e.value for e in events} == pytest.approx(largest, abs=1e-6)
@@ -269,7 +269,7 @@ def test_a_learning_curve_resumes_and_a_value_added_adds_only_its_cells(curve, t
     assert rows == before
     more = [*PLACES, TRAINING_PLACES]
     after, proc = sweep_rows(*CURVE_ARGS, _places(more), f"logdir={copy}")
-    new = [r for r in after if settings_of(r)["train_places"] == TRAINING_PLACES]
+    new = [r for r in after if swept_of(r)["train_places"] == TRAINING_PLACES]
     assert len(after) == n + len(new) and {r.method for r in new} == {"raw", "pca", "fae"}
     assert f"resuming: {n} of {len(after)} cells already in results.csv" in proc.stdout
     old = {r.run: r for r in after if r.run in {b.run for b in before}}

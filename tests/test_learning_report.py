@@ -12,7 +12,7 @@ from vpr_jax.command_line import parse_config
 from vpr_jax.method_table import NAMES, model_label
 from vpr_jax.outputs import plots
 from vpr_jax.outputs.palette import OBJECTIVE_ORDER, curve_styles
-from vpr_jax.outputs.results import ResultRow, settings_columns
+from vpr_jax.outputs.results import ResultRow, swept_columns
 
 PAIR = "summer-fall"
 OBJECTIVES = OBJECTIVE_ORDER[1:]
@@ -21,7 +21,7 @@ WHY = "ica.n_components=128 with removed_pcs=0 needs 128 components but the data
 
 def _row(method: str, places: int, recall: float, objective: str = "", val: float = 0.9):
     """A selected row of a learning curve at ``places`` training places."""
-    columns = settings_columns({"train_places": places})
+    columns = swept_columns({"train_places": places})
     return ResultRow(
         **{
             **dict.fromkeys(ResultRow._fields, 0),

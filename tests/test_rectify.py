@@ -14,7 +14,7 @@ import pytest
 from tests.conftest import TINY_ROUTE, shared_folder, shared_sweep
 from vpr_jax import load_encoder
 from vpr_jax.methods.rectify import rectified
-from vpr_jax.outputs.results import read_results, settings_of
+from vpr_jax.outputs.results import read_results, swept_of
 
 
 def _cosines(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -132,10 +132,10 @@ def test_rectify_is_an_axis_of_built_in_and_user_methods(rectify_sweep):
     rows = read_results(rectify_sweep[0] / "results.csv")
     for method in ("pca", "lda", "projection"):
         mine = [r for r in rows if r.method == method]
-        values = {settings_of(r)["rectify"] for r in mine}
+        values = {swept_of(r)["rectify"] for r in mine}
         assert values == {False, True}, method
         assert sum(r.selected for r in mine) == 1, method  # one choice among them all
-    pca_rows = {(settings_of(r)["rectify"], r.removed_pcs) for r in rows if r.method == "pca"}
+    pca_rows = {(swept_of(r)["rectify"], r.removed_pcs) for r in rows if r.method == "pca"}
     assert pca_rows == {(False, 0), (False, 5), (True, 0), (True, 5)}
 
 

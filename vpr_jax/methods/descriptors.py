@@ -21,9 +21,9 @@ _EPS = 1e-12
 
 
 class Part(NamedTuple):
-    """A cell's part of a fit's descriptors: its settings and its run."""
+    """A cell's part of a fit's descriptors: its swept values and its run."""
 
-    settings: dict  # the cell's swept settings, by name ({} none): results.csv's settings
+    swept: dict  # the cell's swept values, by name ({} none): results.csv's settings column
     run: str  # its run's name less the pair and ds: fae_cross_season, ica_n_components=64_k005
 
 

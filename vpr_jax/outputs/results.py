@@ -63,7 +63,7 @@ ResultRow = NamedTuple(
         ("objective", str),  # the auto-encoders' training objective; empty for other methods
         ("setting", str),  # the method's swept settings, e.g. n_components=64; empty: none
         ("settings", str),  # every swept setting of the cell, JSON; the two columns around
-        # it are made from it (``settings_columns``)
+        # it are made from it (``swept_columns``)
         *((key, int) for key in SWEEP_KEYS),  # each sweep key's value (0: not a setting)
         ("ds", int),  # sequence length; 1 = single images
         ("n_train", int),  # images the encoder was fitted on, both seasons
@@ -114,21 +114,21 @@ def cell_name(method: str, objective: str, swept, seed: int | None = None) -> st
     return model_label(method, objective, label(plain), seed) + suffix
 
 
-def settings_columns(settings: dict) -> dict:
-    """A cell's results.csv columns of its swept settings (``settings``, by name): all of
-    them as JSON, their label less the sweep's keys, and each sweep key's value (0 for a
-    cell without it)."""
+def swept_columns(swept: dict) -> dict:
+    """A cell's results.csv columns of its swept values (by name): all of them as JSON (the
+    ``settings`` column), their label less the sweep's keys, and each sweep key's value (0
+    for a cell without it)."""
     return {
-        "setting": label(tuple((n, v) for n, v in settings.items() if n not in SWEEP_KEYS)),
-        "settings": json.dumps(settings),
-        **{key: int(settings.get(key, 0)) for key in SWEEP_KEYS},
+        "setting": label(tuple((n, v) for n, v in swept.items() if n not in SWEEP_KEYS)),
+        "settings": json.dumps(swept),
+        **{key: int(swept.get(key, 0)) for key in SWEEP_KEYS},
     }
 
 
-def settings_hparams(settings: dict) -> dict:
-    """A cell's TensorBoard hparams of its swept settings: their label less the sweep's
+def swept_hparams(swept: dict) -> dict:
+    """A cell's TensorBoard hparams of its swept values: their label less the sweep's
     keys, and each sweep key's value (a float: an hparam's axis)."""
-    columns = settings_columns(settings)
+    columns = swept_columns(swept)
     return {"setting": columns["setting"], **{key: float(columns[key]) for key in SWEEP_KEYS}}
 
 
@@ -138,14 +138,14 @@ def report_columns(report: Report) -> dict:
     return {k: int(v) if isinstance(v, bool) else v for k, v in values.items()}
 
 
-def settings_of(row: ResultRow) -> dict:
-    """A row's swept settings (its ``settings`` column)."""
+def swept_of(row: ResultRow) -> dict:
+    """A row's swept values, by name (its ``settings`` column, JSON)."""
     return json.loads(row.settings) if row.settings else {}
 
 
 def sweep_labels(row: ResultRow) -> list[str]:
     """The sweep's keys the row's cell has, as the run log and results.md name them (k=5)."""
-    values = settings_of(row)
+    values = swept_of(row)
     return [SWEEP_KEYS[k].label.format(values[k]) for k in SWEEP_KEYS if k in values]
 
 
@@ -206,13 +206,13 @@ ROW_KEYS = ("train_places",)
 
 def row_values(row: ResultRow) -> tuple:
     """(name, value) of the row keys the row's cell has."""
-    values = settings_of(row)
+    values = swept_of(row)
     return tuple((k, values[k]) for k in ROW_KEYS if k in values)
 
 
 def plain_setting(row: ResultRow) -> str:
     """The row's setting less the row keys (the training places of a learning curve)."""
-    values = settings_of(row)
+    values = swept_of(row)
     if not any(k in values for k in ROW_KEYS):
         return row.setting
     keep = tuple((k, v) for k, v in values.items() if k not in (*SWEEP_KEYS, *ROW_KEYS))
@@ -222,7 +222,7 @@ def plain_setting(row: ResultRow) -> str:
 def training_places(row: ResultRow) -> int | None:
     """The training places the row's method was fitted on (a learning curve's point);
     None: every training place."""
-    return settings_of(row).get("train_places")
+    return swept_of(row).get("train_places")
 
 
 def largest_places(rows: list[ResultRow]) -> list[ResultRow]:
@@ -258,7 +258,7 @@ def natural_order(text: str) -> tuple:
 def choice_order(row: ResultRow) -> tuple:
     """The order ties are decided in: settings in natural order, then the smallest values
     of the sweep's keys (the fewest removed PCs), then the seed."""
-    values = settings_of(row)
+    values = swept_of(row)
     return (natural_order(row.setting), tuple(values.get(k, 0) for k in SWEEP_KEYS), row.seed)
 
 

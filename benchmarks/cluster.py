@@ -1,0 +1,198 @@
+"""A sweep's fits over a Ray cluster against one process and against jax.distributed.
+
+    python benchmarks/cluster.py [--preset paper] [--route-seeds 0,1,2] [--warm-up] [--keep DIR]
+                                 [--tiny]
+
+Four runs of ``python -m experiments.sweep preset=paper`` on this machine, each in fresh
+processes, wall time from start to exit:
+
+1. one process with every core;
+2. ``cluster.address=local`` with one worker held to one core
+   (``cluster.workers=1 cluster.cores_per_worker=1``);
+3. ``cluster.address=local`` with two workers, a core each;
+4. today's way to use two processes, ``mesh.distributed=true`` on loopback, each process
+   held to one core (both compute every fit together).
+
+Ratios: two workers against one (goal: at least 1.7x) and against one process (goal: no
+slower, at least 1x). The compiled programs come from the suite's compile cache: the first
+run of a preset on a machine compiles them, so ``--warm-up`` runs the preset once untimed
+first (or run the benchmark after one sweep of the preset).
+
+Projection: the one-worker run's sweep.log gives each fit's wall time on one core ("fitted on
+node ... in S s"); what is not fitting (start, data, the pairs' shared PCA fits, report) is
+the rest of its wall time, kept serial. N workers cannot finish sooner than that rest plus
+the longer of the longest fit and the fits' total over N (the critical path), printed for N
+= 4, 16 and 64 with a greedy schedule (longest fit first to the least busy worker) beside it.
+The same for the whole route with seeds: ``preset=full seeds=[...]`` on two workers of a
+core each (its fits: raw, pca and ica per pair, ica once per seed; the rest is its wall
+time less the greedy schedule of its fits on two workers).
+
+``--tiny`` (for the tests): a 240-frame route with raw and pca and two seeds of ica, one
+pair, the route's projection from the two workers' run; the figures mean nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from common import TINY_HELP, cpu_name
+
+REPO = Path(__file__).resolve().parent.parent
+TIMEOUT_S = 3 * 3600  # one sweep's run, at most
+WORKERS = (4, 16, 64)  # the projection's cluster sizes
+TINY = [
+    "data.n_frames=240",
+    "split.n_train=100",
+    "split.n_test=50",
+    "split.gap=10",
+    "season_pairs=summer-fall",
+    "methods=[raw,pca,ica]",
+    "removed_pcs=[0,5]",
+    "ica.n_components=8",
+    "seeds=[0,1]",
+]
+# a fit's line in sweep.log (experiments.cluster): pair, fit folder, seconds
+FITTED = re.compile(
+    r"^(\S+) (\S+): fitted on node \S+ \((?:cores [\d,]+|not pinned)\) in ([\d.]+) s"
+)
+
+
+def sweep(args: list[str], logdir: Path, *, cores: set[int] | None = None, env=None) -> float:
+    """``python -m experiments.sweep ARGS logdir=...`` (checkpoints beside it) in a fresh
+    process, held to ``cores`` if given: its wall seconds. Exits with its stderr if it fails."""
+    return _together([[*args, f"logdir={logdir}"]], logdir, cores=[cores], env=env)
+
+
+def _together(argvs, logdir: Path, *, cores, env=None) -> float:
+    """Every sweep of ``argvs`` started at once (the same logdir's checkpoints), each held
+    to its ``cores``: the wall seconds until the last ends."""
+    checkpoints = f"train.checkpoint_dir={logdir.parent / 'checkpoints'}"
+    print(f"  running: {' '.join(argvs[0])}", flush=True)
+    start = time.perf_counter()
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "experiments.sweep", *argv, checkpoints],
+            cwd=REPO,
+            env={**os.environ, "PYTHONPATH": str(REPO), **(env or {})},
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            preexec_fn=(lambda c=c: os.sched_setaffinity(0, c)) if c else None,
+        )
+        for argv, c in zip(argvs, cores, strict=True)
+    ]
+    errors = [proc.communicate(timeout=TIMEOUT_S)[1] for proc in procs]
+    wall = time.perf_counter() - start
+    for proc, err in zip(procs, errors, strict=True):
+        if proc.returncode != 0:
+            print(err[-3000:], file=sys.stderr)
+            raise SystemExit(f"{' '.join(argvs[0])} failed (exit {proc.returncode})")
+    return wall
+
+
+def distributed(args: list[str], logdir: Path, cores: list[int]) -> float:
+    """Two processes with ``mesh.distributed=true`` on loopback, one core each."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    common = [*args, f"logdir={logdir}", "mesh.distributed=true", "mesh.num_processes=2"]
+    common.append(f"mesh.coordinator=127.0.0.1:{port}")
+    argvs = [[*common, f"mesh.process_id={i}"] for i in range(2)]
+    return _together(argvs, logdir, cores=[{c} for c in cores])
+
+
+def fit_seconds(logdir: Path) -> list[float]:
+    """Each fit's wall time on its worker, from the cluster run's sweep.log."""
+    lines = (logdir / "sweep.log").read_text().splitlines()
+    times = [float(m.group(3)) for line in lines if (m := FITTED.match(line))]
+    if not times:
+        raise SystemExit(f"{logdir / 'sweep.log'} names no fitted fit: not a cluster run?")
+    return times
+
+
+def greedy(times: list[float], workers: int) -> float:
+    """The longest fit first to the least busy worker: when the last worker ends."""
+    busy = [0.0] * workers
+    for t in sorted(times, reverse=True):
+        busy[busy.index(min(busy))] += t
+    return max(busy)
+
+
+def speed_up(name: str, ratio: float, goal: float) -> None:
+    met = "met" if ratio >= goal else "not met"
+    print(f"speed-up, {name}: ratio {ratio:5.2f}x (goal >= {goal:g}x: {met})")
+
+
+def projection(name: str, wall: float, times: list[float], workers: int) -> None:
+    """The critical path and a greedy schedule for ``WORKERS`` workers (module docstring),
+    from a run on ``workers`` workers that took ``wall`` seconds."""
+    rest = max(wall - greedy(times, workers), 0.0)
+    print(
+        f"projection, {name}: {len(times)} fits, {sum(times):.1f} s of fitting on one core "
+        f"(longest {max(times):.1f} s), {rest:.1f} s besides (start, data, shared PCA, report)"
+    )
+    for n in WORKERS:
+        bound = rest + max(max(times), sum(times) / n)
+        print(
+            f"  {n:>3} workers: at least {bound:8.1f} s (critical path), "
+            f"{rest + greedy(times, n):8.1f} s scheduled longest first"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--preset", default="paper", help="the sweep timed four ways")
+    parser.add_argument("--route-seeds", default="0,1,2", help="seeds of the route's projection")
+    parser.add_argument("--keep", type=Path, help="keep the logdirs here (default: a temp folder)")
+    parser.add_argument(
+        "--warm-up", action="store_true", help="one untimed run first, to fill the compile cache"
+    )
+    parser.add_argument("--tiny", action="store_true", help=TINY_HELP)
+    opts = parser.parse_args()
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) < 2:
+        raise SystemExit("this benchmark needs two cores: run it where it may use two or more")
+    args = TINY if opts.tiny else [f"preset={opts.preset}"]
+    route = args if opts.tiny else ["preset=full", f"seeds=[{opts.route_seeds}]"]
+    print(f"cluster benchmark on {cpu_name()}: {' '.join(args)}")
+    with tempfile.TemporaryDirectory(prefix="vpr_jax-cluster-") as tmp:
+        root = opts.keep or Path(tmp)
+        if root.is_dir() and any(root.iterdir()):  # a logdir there would resume, not run
+            raise SystemExit(f"--keep {root} is not empty: give a new or empty folder")
+        local = ["cluster.address=local"]
+        if opts.warm_up:  # compiles what the runs below then take from the cache
+            sweep(args, root / "warm_up")
+        one = sweep(args, root / "one_process")
+        one_worker = [*local, "cluster.workers=1", "cluster.cores_per_worker=1"]
+        worker = sweep([*args, *one_worker], root / "one_worker")
+        workers = sweep([*args, *local, "cluster.workers=2"], root / "two_workers")
+        spmd = distributed(args, root / "distributed", cores[:2])
+        for name, wall in (
+            (f"one process, {len(cores)} cores", one),
+            ("cluster.address=local, 1 worker on 1 core", worker),
+            ("cluster.address=local, 2 workers, 1 core each", workers),
+            ("mesh.distributed=true, 2 processes, 1 core each", spmd),
+        ):
+            print(f"{name:<48} {wall:8.1f} s")
+        speed_up("2 workers over 1 worker", worker / workers, 1.7)
+        speed_up("2 workers over one process", one / workers, 1.0)
+        projection(" ".join(args), worker, fit_seconds(root / "one_worker"), 1)
+        if opts.tiny:  # the route's projection from the two workers' tiny run
+            route_wall, route_dir = workers, root / "two_workers"
+        else:
+            route_dir = root / "route"
+            route_wall = sweep([*route, *local, "cluster.workers=2"], route_dir)
+        projection(" ".join(route), route_wall, fit_seconds(route_dir), 2)
+
+
+if __name__ == "__main__":
+    main()
