@@ -45,7 +45,7 @@ from pathlib import Path
 from common import TINY_HELP, cpu_name
 
 REPO = Path(__file__).resolve().parent.parent
-TIMEOUT_S = 3 * 3600  # one sweep's run, at most
+TIMEOUT_S = 3 * 3600  # one sweep's run, at most (the tests' --tiny: their own limit)
 WORKERS = (4, 16, 64)  # the projection's cluster sizes
 TINY = [
     "data.n_frames=240",
@@ -88,7 +88,13 @@ def _together(argvs, logdir: Path, *, cores, env=None) -> float:
         )
         for argv, c in zip(argvs, cores, strict=True)
     ]
-    errors = [proc.communicate(timeout=TIMEOUT_S)[1] for proc in procs]
+    try:
+        errors = [proc.communicate(timeout=TIMEOUT_S)[1] for proc in procs]
+    finally:  # a run past its time (or Ctrl-C) leaves no sweep behind
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
     wall = time.perf_counter() - start
     for proc, err in zip(procs, errors, strict=True):
         if proc.returncode != 0:

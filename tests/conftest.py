@@ -337,6 +337,19 @@ def shared_folder(tmp_path_factory, name: str, make: Callable[[Path], None]) -> 
     return folder
 
 
+@pytest.fixture
+def one_ray_at_a_time(tmp_path_factory):
+    """Held while a test's Ray cluster runs: tests that start one (test_cluster.py, the
+    cluster benchmark) take turns, whichever pytest-xdist worker runs them, so two clusters
+    never share the cores at once (an exclusive lock in the session's folder)."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent
+    with open(base / "ray.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        yield
+
+
 def shared_sweep(tmp_path_factory, name: str, *args: str, path: Iterable[str | Path] = ()):
     """``(logdir, the finished process)`` of ``run_here(*args, path=path)`` run once per
     session into a ``shared_folder`` (read-only for every test; the worker that ran it

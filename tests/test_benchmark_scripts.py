@@ -187,6 +187,20 @@ def test_scaling(tmp_path, capfd):
     assert plot.stat().st_size > 0
 
 
+def test_cluster(one_ray_at_a_time):
+    """The four runs, both speed-ups against their goals and both projections, each from
+    its own sweep.log (Ray started and stopped by each cluster run)."""
+    out = run_script("cluster.py", "--tiny")
+    for run in ("one process", "1 worker on 1 core", "2 workers, 1 core each", "2 processes"):
+        line_matching(out, rf"{run}.* +\d+\.\d s$")
+    line_matching(out, r"speed-up, 2 workers over 1 worker: ratio +\d+\.\d\dx \(goal >= 1\.7x")
+    line_matching(out, r"speed-up, 2 workers over one process: ratio +\d+\.\d\dx \(goal >= 1x")
+    # raw; pca, whose fit serves both removed counts; ica at each removed count, two seeds
+    assert len(re.findall(r"projection, .*: 6 fits, ", out)) == 2, out
+    for n in (4, 16, 64):
+        assert len(re.findall(rf"^ +{n} workers: at least +\d+\.\d s", out, re.M)) == 2
+
+
 def test_match_exactness(tmp_path, capfd):
     root = write_folders(tmp_path / "data", n=100)
     out = run_here(capfd, "match_exactness.py", str(root), "--tiny")

@@ -53,7 +53,7 @@ def _rows(logdir) -> dict[str, dict]:
 
 
 @pytest.fixture
-def two_nodes(tmp_path, monkeypatch):
+def two_nodes(tmp_path, monkeypatch, one_ray_at_a_time):
     """A head and a second node of one CPU each; its workers import the user's module
     folder ``tmp_path/mine`` as a user's would (PYTHONPATH). Shut down however the test
     ends."""
