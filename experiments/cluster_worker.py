@@ -100,7 +100,17 @@ def _pin(everything: list[int], share: int) -> None:
                 handle.close()
                 continue
             _lock, _cores = handle, tuple(everything[slot * share : (slot + 1) * share])
-            os.sched_setaffinity(0, _cores)
+            _hold_every_thread(_cores)
             return
     except OSError:
         return  # a folder not ours, or a full disk: unpinned, as Ray leaves it
+
+
+def _hold_every_thread(cores: tuple[int, ...]) -> None:
+    """Every thread of this process held to ``cores``: an affinity is a thread's own, and
+    XLA's pool, BLAS's and Ray's threads exist already (threads made later inherit it)."""
+    for task in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(task), cores)
+        except OSError:
+            pass  # a thread that ended meanwhile

@@ -114,6 +114,35 @@ def test_a_two_node_cluster_gives_the_one_process_rows(two_nodes, tmp_path):
     assert_one_line_error(broken, "method broken", "deliberately broken", "rerun the same command")
 
 
+def test_every_thread_of_a_pinned_worker_is_held_to_its_core(two_nodes):
+    """JAX's pool, BLAS's and Ray's threads exist before a worker pins itself: all of them
+    are held to its core, while JAX keeps the width of the whole node."""
+    import ray
+
+    cluster, _ = two_nodes
+    first = min(os.sched_getaffinity(0))
+
+    def threads_allowed():  # on a worker (defined here: Ray sends it by value)
+        from experiments import cluster_worker
+
+        cluster_worker.start()
+        allowed = set()
+        for task in os.listdir("/proc/self/task"):
+            with open(f"/proc/self/task/{task}/status") as f:
+                allowed |= {line.split()[1] for line in f if line.startswith("Cpus_allowed_list:")}
+        return cluster_worker.cores(), cluster_worker.width(), allowed
+
+    ray.init(address=cluster.address, logging_level="WARNING", log_to_driver=False)
+    try:
+        env = {"env_vars": {"VPR_JAX_CORES_PER_WORKER": "1"}}
+        probe = ray.remote(num_cpus=1)(threads_allowed).options(runtime_env=env)
+        for cores, width, allowed in ray.get([probe.remote() for _ in range(2)], timeout=120):
+            assert cores == (first,) and allowed == {str(first)}, (cores, allowed)
+            assert width == len(os.sched_getaffinity(0))
+    finally:
+        ray.shutdown()
+
+
 def test_an_address_where_nothing_answers_is_one_line_and_nothing_written(tmp_path):
     import socket
 
