@@ -94,13 +94,20 @@ def connect(cluster: ClusterConfig, log: Log) -> None:
 
 
 def _worker_env(cluster: ClusterConfig) -> dict:
-    """What every worker of this sweep starts with: the cores each is pinned to
-    (``experiments.cluster_worker``), where ``cluster.cores_per_worker`` says; none where
-    fits ask for GPUs (untried: no GPU here)."""
-    share = 0 if cluster.gpus_per_fit > 0 else cluster.cores_per_worker
-    if share is None:
+    """What every worker of this sweep starts with (``experiments.cluster_worker``): the
+    cores each holds to, and with ``threads=share`` the setup hook that holds it there
+    before JAX starts (sent by value: a worker cannot import the suite from the driver's
+    folder before the hook runs). Fits that ask for GPUs: neither (untried: no GPU here)."""
+    if cluster.gpus_per_fit > 0:
         return {}
-    return {"runtime_env": {"env_vars": {cluster_worker.SHARE_ENV: str(share)}}}
+    share = "" if cluster.cores_per_worker is None else str(cluster.cores_per_worker)
+    runtime: dict = {"env_vars": {cluster_worker.SHARE_ENV: share}}
+    if cluster.threads == "share":
+        from ray import cloudpickle
+
+        cloudpickle.register_pickle_by_value(cluster_worker)
+        runtime["worker_process_setup_hook"] = cluster_worker.start_on_share
+    return {"runtime_env": runtime}
 
 
 def _unreachable(address: str) -> str | None:

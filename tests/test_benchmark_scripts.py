@@ -187,14 +187,17 @@ def test_scaling(tmp_path, capfd):
     assert plot.stat().st_size > 0
 
 
-def test_cluster(one_ray_at_a_time):
-    """The four runs, both speed-ups against their goals and both projections, each from
-    its own sweep.log (Ray started and stopped by each cluster run)."""
+def test_cluster():
+    """The five rows, the three speed-ups against their goals and both projections, each
+    from its sweep.log (each cluster run starts and stops a Ray of its own, on ports of its
+    own: it need not wait for test_cluster.py's)."""
     out = run_script("cluster.py", "--tiny")
-    for run in ("one process", "1 worker on 1 core", "2 workers, 1 core each", "2 processes"):
+    runs = ("one process", "1 worker on 1 core", "1 core each", "threads=node", "2 processes")
+    for run in runs:
         line_matching(out, rf"{run}.* +\d+\.\d s$")
     line_matching(out, r"speed-up, 2 workers over 1 worker: ratio +\d+\.\d\dx \(goal >= 1\.7x")
     line_matching(out, r"speed-up, 2 workers over one process: ratio +\d+\.\d\dx \(goal >= 1x")
+    line_matching(out, r"speed-up, 2 workers \(threads=node\) over one process: ratio +\d")
     # raw; pca, whose fit serves both removed counts; ica at each removed count, two seeds
     assert len(re.findall(r"projection, .*: 6 fits, ", out)) == 2, out
     for n in (4, 16, 64):

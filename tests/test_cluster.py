@@ -77,13 +77,14 @@ def test_a_two_node_cluster_gives_the_one_process_rows(two_nodes, tmp_path):
     cluster, mine = two_nodes
     alone = run_here(*ARGS, f"logdir={tmp_path / 'alone'}")
     assert alone.returncode == 0, alone.stderr[-2000:]
-    # Each worker held to one core (experiments.cluster_worker) after its JAX and BLAS
-    # started over every core: the numbers stay the one process's.
+    # threads=share: each worker held to its node's share of the cores before its JAX
+    # starts (Ray's setup hook, sent by value): here a node's CPU is both cores, so its
+    # JAX takes both, and the numbers are the one process's.
     spread = run_here(
         *ARGS,
         f"logdir={tmp_path / 'spread'}",
         f"cluster.address={cluster.address}",
-        "cluster.cores_per_worker=1",
+        "cluster.threads=share",
     )
     assert spread.returncode == 0, spread.stderr[-2000:]
     one, many = _rows(tmp_path / "alone"), _rows(tmp_path / "spread")
@@ -93,7 +94,8 @@ def test_a_two_node_cluster_gives_the_one_process_rows(two_nodes, tmp_path):
             assert many[run][column] == row[column], (run, column)
     log = (tmp_path / "spread" / "sweep.log").read_text()
     assert "cluster: " in log and "2 node(s)" in log
-    assert re.search(r"fitted on node \S+ \(cores \d+\) in ", log), log
+    every = ",".join(map(str, sorted(os.sched_getaffinity(0))))
+    assert re.search(rf"fitted on node \S+ \(cores {every}\) in ", log), log
     # Every fitted state reached the driver's checkpoint folder, every run its logdir.
     folders = sorted(
         p.name for p in (tmp_path / "checkpoints" / "spread" / "summer-fall").iterdir()

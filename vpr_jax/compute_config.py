@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from vpr_jax.errors import UserError
 
 MATCHING_PRECISIONS = ("float32", "default")
+CLUSTER_THREADS = ("node", "share")  # experiments.cluster_worker
 
 
 def check(ok: bool, message: str) -> None:
@@ -76,8 +77,12 @@ class ClusterConfig:
     address: str | None = None
     workers: int = 2  # local only: worker processes, one CPU each
     gpus_per_fit: float = 0.0  # what a fit that trains asks of a node's GPUs (0: none)
-    # cores each worker is held to (experiments.cluster_worker); null: a node's cores over
-    # its Ray CPUs; 0: workers not pinned
+    # node: each worker's JAX and BLAS take every core of its node, as one process there
+    # would (the one process's numbers); share: only the worker's own cores, held before
+    # JAX starts (faster; the numbers of one process given that many cores)
+    threads: str = "node"
+    # cores each worker is held to (experiments.cluster_worker); null: none with threads=
+    # node, a node's cores over its Ray CPUs with threads=share; 0: not pinned
     cores_per_worker: int | None = None
 
     def __post_init__(self):
@@ -85,6 +90,16 @@ class ClusterConfig:
         check(
             self.gpus_per_fit >= 0,
             f"cluster.gpus_per_fit={self.gpus_per_fit} is negative: use 0 (CPU) or a share",
+        )
+        check(
+            self.threads in CLUSTER_THREADS,
+            f"cluster.threads={self.threads} is unknown: use node (the one process's numbers) "
+            "or share (each worker's JAX on its own cores)",
+        )
+        check(
+            not (self.threads == "share" and self.cores_per_worker == 0),
+            "cluster.threads=share holds each worker to its cores, which "
+            "cluster.cores_per_worker=0 turns off: give a count, or leave it unset",
         )
         check(
             self.cores_per_worker is None or self.cores_per_worker >= 0,
