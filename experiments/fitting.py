@@ -12,6 +12,7 @@ makes the pair's data that every fit of it reads.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import traceback
 from collections.abc import Callable, Iterator
@@ -28,6 +29,7 @@ from experiments.plan import Plan
 from experiments.resolve import Fit, Served
 from experiments.saving import save_state
 from vpr_jax.data.pair import PairData, benchmark_pair, pair_data, with_train_places
+from vpr_jax.encoders import inputs
 from vpr_jax.encoders import pca as pca_math
 from vpr_jax.errors import UserError, first_line
 from vpr_jax.evaluation.protocol import describe_protocol, fingerprint, protocol_record
@@ -52,6 +54,7 @@ from vpr_jax.methods.descriptors import (
     encode_validation,
     timed,
 )
+from vpr_jax.methods.inputs import PIXELS, input_of
 from vpr_jax.methods.precomputed import Outside
 from vpr_jax.methods.settings import as_dict
 from vpr_jax.outputs.tb import TrainingRun
@@ -92,9 +95,35 @@ def pair_run(
 
 def _shared_pca_settings(fit: Fit, plan: Plan) -> Any:
     """The settings of the shared PCA fit ``fit`` uses: pca's own cells theirs, every other
-    method pca's first."""
-    own = fit.method.info == plan.pca.info
-    return fit.settings if own else plan.pca.combinations[0].settings
+    method pca's first, of the fit's own input (a PCA fit of what the method sees)."""
+    if fit.method.info == plan.pca.info:
+        return fit.settings
+    return dataclasses.replace(plan.pca.combinations[0].settings, input=seen_input(fit))
+
+
+def seen_input(fit: Fit) -> str:
+    """The input the fit's method sees (``vpr_jax.methods.inputs``): what a method given
+    ``with_input`` names when it needs the input's options; pixels otherwise (an
+    auto-encoder's own ``input`` is not one)."""
+    if "input_options" in fit.method.method.needs(fit.settings):
+        return input_of(fit.settings)
+    return PIXELS
+
+
+def input_options(cfg) -> inputs.Options:
+    """The options of the inputs' parts that have them (``gradients.*``, ``patchnorm.*``)."""
+    g, p = cfg.gradients, cfg.patchnorm
+    return inputs.Options(
+        cell=g.cell, bins=g.bins, block=g.block, norm=g.norm, patch=p.size, rounded=p.rounded
+    )
+
+
+def _as_seen(settings: Any, train, cfg):
+    """The training images as the input of ``settings`` shows them (pixels: as they are)."""
+    name = input_of(settings)
+    if name == PIXELS:
+        return train
+    return inputs.apply(inputs.fit(name, train, input_options(cfg)), train)
 
 
 def pca_fit_key(fit: Fit, plan: Plan) -> tuple | None:
@@ -110,7 +139,7 @@ def pca_fit(fit: Fit, run: PairRun) -> PCAFit:
     methods use it, so each user gets what it would get alone."""
     key, settings = pca_fit_key(fit, run.plan), _shared_pca_settings(fit, run.plan)
     if key not in run.made:
-        train = fitted_on(fit, run).train
+        train = _as_seen(settings, fitted_on(fit, run).train, run.plan.cfg)
         n_images, n_pixels = len(train), int(np.prod(train.shape[1:]))
         asked = pca.shared_components(settings, n_images, n_pixels)
         state, seconds = timed(
@@ -167,6 +196,8 @@ def resources(fit: Fit, run: PairRun) -> dict[str, Any]:
         out["mesh"] = run.mesh
     if "outside" in needs:
         out["outside"] = Outside(sides=run.plan.outside[fit.method.name], pair=data)
+    if "input_options" in needs:
+        out["input_options"] = input_options(run.plan.cfg)
     return out
 
 

@@ -33,6 +33,7 @@ from vpr_jax.method_table import (
 )
 from vpr_jax.methods import settings as axes
 from vpr_jax.methods.contract import ROWS, SERVED, SUFFIX, Method, TrainingSet, as_method
+from vpr_jax.methods.inputs import input_of
 from vpr_jax.methods.settings import Combination
 from vpr_jax.outputs.results import SWEEP_KEYS, cell_name
 from vpr_jax.progress import Log
@@ -169,7 +170,23 @@ def resolve_methods(
             f"data.source={source} does not have: {ALIGNED_FIX}"
         )
     _check_run_names(resolved)
+    _check_patchnorm_once(cfg, resolved)
     return tuple(resolved)
+
+
+def _check_patchnorm_once(cfg: SweepConfig, resolved: list[Resolved]) -> None:
+    """``preprocess=patchnorm`` has normalised every image already: a method's input with
+    the part ``patchnorm`` would normalise it again."""
+    if cfg.preprocess != "patchnorm":
+        return
+    for r in resolved:
+        for c in r.combinations:
+            if "patchnorm" in input_of(c.settings).split("+"):
+                raise UserError(
+                    f"{r.group}.input={input_of(c.settings)} patch-normalises images that "
+                    "preprocess=patchnorm has normalised already: drop one (the input is part "
+                    "of the method's encoder; preprocess applies to every method)"
+                )
 
 
 def _check_run_names(resolved: list[Resolved]) -> None:

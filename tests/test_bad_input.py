@@ -210,6 +210,23 @@ CONFIG_CASES = {
         ["patchnorm.size=5", "2, 4, 8, 16, 32"],
     ),
     "unknown preprocessing": (["preprocess=clahe"], ["preprocess=clahe", "patchnorm"]),
+    "an input that is no part": (
+        ["lda.input=[pixels,edges]"],
+        ["lda.input=edges", "'edges' is not an input part", "standardised+gradients"],
+    ),
+    "an input naming a part twice": (
+        ["raw.input=gradients+gradients"],
+        ["raw.input=gradients+gradients", "named twice"],
+    ),
+    "the flag an input replaced": (
+        ["lda.standardise=true"],
+        ["lda.standardise is now lda.input", "lda.input=standardised"],
+    ),
+    "patch normalisation twice": (
+        ["preprocess=patchnorm", "raw.input=patchnorm"],
+        ["raw.input=patchnorm", "preprocess=patchnorm", "drop one"],
+    ),
+    "unknown block normalisation": (["gradients.norm=L3"], ["gradients.norm=L3", "L2-Hys"]),
     "a method that is not module:name": (["methods=[raw,a:b:c]"], ["'a:b:c' is not module:name"]),
     "your method named like a built-in one": (
         ["methods=[raw,my.mod:pca]"],

@@ -396,7 +396,15 @@ def test_the_fixture_folders_are_format_2_and_cover_every_built_in_state_type():
         for f in folders
         for n in _class_names(json.loads((f / "state/skeleton.json").read_text()))
     }
-    assert named == set(state_types())
+    # State types made after the fixture have no folder of an earlier version to load;
+    # tests/test_inputs.py saves and loads theirs.
+    newer = {
+        "vpr_jax.encoders.inputs:InputState",
+        "vpr_jax.encoders.inputs:Options",
+        "vpr_jax.methods.inputs:WithInput",
+    }
+    assert newer <= set(state_types())
+    assert named == set(state_types()) - newer
 
 
 def _class_names(skeleton) -> set[str]:

@@ -16,7 +16,8 @@ from vpr_jax.encoders.gradients import gradient_histograms, n_features, orientat
 skimage_feature = pytest.importorskip("skimage.feature")
 
 CASES = [  # cell, bins, block, norm
-    (4, 9, 2, "L2-Hys"),  # the suite's default
+    (4, 9, 3, "L2"),  # the suite's default (gradients.*)
+    (4, 9, 2, "L2-Hys"),
     (8, 9, 3, "L2-Hys"),  # scikit-image's default
     (4, 8, 2, "L1"),  # edges at 45 and 90 degrees
     (5, 7, 2, "L1-sqrt"),  # cells that do not tile 32 x 64: the remainder dropped

@@ -32,6 +32,7 @@ BENCHMARK_SOURCES = tuple(BENCHMARK_PAIRS)
 SOURCES = (*ROUTE_SOURCES, *BENCHMARK_SOURCES)
 OPTIMIZERS = ("adam", "adamw", "sgd")  # optax's functions of these names
 PREPROCESSES = ("none", "patchnorm")
+GRADIENT_NORMS = ("L1", "L1-sqrt", "L2", "L2-Hys")  # vpr_jax.encoders.gradients.NORMS
 # How PR recall counts (docs/metrics.md, "PR conventions"; vpr_jax.evaluation.metrics).
 PR_CONVENTIONS = ("vpr_bench", "has_match", "vpr_tutorial")
 # matching.precision: the matcher's products at float32, or the platform's fastest (TF32 on
@@ -252,9 +253,10 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class PatchNormConfig:
-    """``preprocess=patchnorm``: each image's non-overlapping size x size patches are
-    z-scored (openSeqSLAM's patch normalisation), then mapped into [0, 1] (see
-    ``vpr_jax.data.preprocess``), for every method's training, database and query images."""
+    """Patch normalisation: each image's non-overlapping size x size patches are z-scored
+    (openSeqSLAM's), then mapped into [0, 1] (see ``vpr_jax.data.preprocess``): with
+    ``preprocess=patchnorm`` for every method's training, database and query images, and
+    for a method whose ``input`` has the part ``patchnorm``."""
 
     size: int = 8  # patch side in pixels; must divide the 32x64 images
     rounded: bool = False  # openSeqSLAM's integer variant: grey level 127 + round(z)
@@ -266,6 +268,33 @@ class PatchNormConfig:
             self.size in sizes,
             f"patchnorm.size={self.size} does not tile the {h}x{w} "
             f"images: use one of {', '.join(map(str, sizes))}",
+        )
+
+
+@dataclass(frozen=True)
+class GradientsConfig:
+    """The ``gradients`` input's histograms of gradient orientations (``<method>.input``;
+    ``vpr_jax.encoders.gradients``), for every method that sees them."""
+
+    cell: int = 4  # pixels per cell side
+    bins: int = 9  # unsigned orientation bins over 0-180 degrees
+    # cells per block side; blocks overlap by all but one cell. 3 and L2: chosen on the
+    # Nordland dev frames' tuning half by validation recall@1 (docs/methods.md, inputs)
+    block: int = 3
+    norm: str = "L2"  # each block's normalisation: L1 | L1-sqrt | L2 | L2-Hys
+
+    def __post_init__(self):
+        h, w = IMAGE_SHAPE
+        _check(
+            self.cell >= 1 and h // self.cell >= max(self.block, 1),
+            f"gradients.cell={self.cell} leaves fewer than gradients.block={self.block} cells "
+            f"across the {h}x{w} images: use a cell of at most {h // max(self.block, 1)} pixels",
+        )
+        _check(self.bins >= 2, f"gradients.bins={self.bins} must be at least 2")
+        _check(self.block >= 1, f"gradients.block={self.block} must be at least 1")
+        _check(
+            self.norm in GRADIENT_NORMS,
+            f"gradients.norm={self.norm} is unknown: use one of {', '.join(GRADIENT_NORMS)}",
         )
 
 
@@ -362,6 +391,7 @@ class SweepKnobs:
     train: TrainConfig = field(default_factory=TrainConfig)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     patchnorm: PatchNormConfig = field(default_factory=PatchNormConfig)
+    gradients: GradientsConfig = field(default_factory=GradientsConfig)
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     bootstrap: BootstrapConfig = field(default_factory=BootstrapConfig)
     mesh: MeshConfig = field(default_factory=MeshConfig)

@@ -18,6 +18,7 @@ A single part is left as it is, unscaled: ``pixels`` gives back the images thems
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -26,32 +27,21 @@ from jaxtyping import Array, Float
 from vpr_jax.data.preprocess import patch_normalize_jax
 from vpr_jax.encoders import gradients
 from vpr_jax.encoders.autoencoders import standardise
-
-PARTS = ("pixels", "standardised", "patchnorm", "gradients")
-IMAGE_PARTS = ("pixels", "standardised", "patchnorm")  # image-shaped: a convolution takes them
+from vpr_jax.encoders.input_parts import IMAGE_PARTS, PARTS, parts_of
 
 
-@dataclasses.dataclass(frozen=True)
-class Options:
+class Options(NamedTuple):
     """How the parts that have settings compute (``gradients.*``, ``patchnorm.*``)."""
 
     cell: int = 4  # gradients: pixels per cell side
     bins: int = 9  # gradients: orientation bins over 0-180 degrees
-    block: int = 2  # gradients: cells per block side
-    norm: str = "L2-Hys"  # gradients: block normalisation
+    block: int = 3  # gradients: cells per block side
+    norm: str = "L2"  # gradients: block normalisation
     patch: int = 8  # patchnorm: patch side
     rounded: bool = False  # patchnorm: openSeqSLAM's integer z-scores
 
 
-def parts_of(name: str) -> tuple[str, ...]:
-    """``"standardised+gradients"`` -> its parts; ValueError naming what is wrong."""
-    parts = tuple(name.split("+"))
-    unknown = [p for p in parts if p not in PARTS]
-    if unknown or not name:
-        raise ValueError(f"input {name!r}: {', '.join(unknown) or 'empty'} is not one of {PARTS}")
-    if len(set(parts)) < len(parts):
-        raise ValueError(f"input {name!r} names a part twice")
-    return parts
+DEFAULTS = Options()
 
 
 @jax.tree_util.register_dataclass
@@ -79,7 +69,7 @@ def part(name: str, images: Float[Array, "n h w"], options: Options) -> Float[Ar
     raise ValueError(f"input part {name!r} is not one of {PARTS}")
 
 
-def fit(name: str, train: Float[Array, "n h w"], options: Options = Options()) -> InputState:
+def fit(name: str, train: Float[Array, "n h w"], options: Options = DEFAULTS) -> InputState:
     """The input ``name`` fitted on ``train``: each part's scale (1 for a single part)."""
     parts = parts_of(name)
     if len(parts) == 1:
@@ -113,7 +103,7 @@ def _flat(x):
     return jnp.reshape(x, (x.shape[0], -1))
 
 
-def n_values(name: str, image_shape: tuple[int, int], options: Options = Options()) -> int:
+def n_values(name: str, image_shape: tuple[int, int], options: Options = DEFAULTS) -> int:
     """How many values the input ``name`` gives an image of ``image_shape``."""
     h, w = image_shape
     sizes = {

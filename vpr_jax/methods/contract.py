@@ -38,7 +38,7 @@ AXIS_KINDS = (SERVED, SUFFIX, ROWS)
 # What a method may need (``needs``): aligned training places, and what its fit takes from
 # the runner by keyword.
 ALIGNED = "aligned"
-RESOURCES = ("pca_fit", "validation", "training", "mesh", "outside")
+RESOURCES = ("pca_fit", "validation", "training", "mesh", "outside", "input_options")
 NEEDS = (ALIGNED, *RESOURCES)
 
 

@@ -117,9 +117,12 @@ def degenerate_warning(db, query) -> str | None:
     )
 
 
-def as_images(vectors, shape: tuple[int, ...]) -> np.ndarray:
-    """Rows of pixels as images of ``shape``."""
+def as_images(vectors, shape: tuple[int, ...]) -> np.ndarray | None:
+    """Rows of pixels as images of ``shape``; None for rows of other values (a method that
+    sees gradient histograms, or a combination of inputs, has no basis images)."""
     vectors = np.asarray(vectors)
+    if vectors.ndim != 2 or vectors.shape[1] != int(np.prod(shape)):
+        return None
     return vectors.reshape(len(vectors), *shape)
 
 

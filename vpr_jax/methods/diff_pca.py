@@ -12,6 +12,7 @@ from jaxtyping import Array, Float
 from vpr_jax.encoders import diff_pca, pca
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import SUFFIX, Method, Report, TrainingSet
+from vpr_jax.methods.inputs import check_input, with_input
 from vpr_jax.methods.pca import beyond_rank, removed_count_fits
 from vpr_jax.methods.rectify import rectifiable
 
@@ -23,8 +24,12 @@ class Settings:
     solver: str = "auto"  # auto | covariance | gram | subspace: PCA of the differences
     removed_pcs: int = 0  # leading change directions removed (the sweep's removed_pcs: one fit)
     rectify: bool = False  # [relu(z), relu(-z)] (vpr_jax.methods.rectify): a fit per value
+    # what the method sees (vpr_jax.methods.inputs): pixels, standardised, patchnorm,
+    # gradients, or parts joined by + (a list: an axis)
+    input: str = "pixels"
 
     def __post_init__(self):
+        check_input(self, "diff_pca")
         if self.solver not in pca.SOLVERS:
             raise UserError(
                 f"diff_pca.solver={self.solver} is unknown: use {', '.join(pca.SOLVERS)}"
@@ -64,14 +69,16 @@ def _report(state, settings: dict) -> Report:
 
 
 method = rectifiable(
-    Method(
-        fit=fit,
-        encode=encode,
-        settings=Settings,
-        axes={"removed_pcs": SUFFIX},  # one fit and one encoding serve every count
-        needs=("aligned", "mesh"),
-        random=False,
-        check=check,
-        report=_report,
+    with_input(
+        Method(
+            fit=fit,
+            encode=encode,
+            settings=Settings,
+            axes={"removed_pcs": SUFFIX},  # one fit and one encoding serve every count
+            needs=("aligned", "mesh"),
+            random=False,
+            check=check,
+            report=_report,
+        )
     )
 )

@@ -10,6 +10,7 @@ import numpy as np
 from vpr_jax.encoders import ica
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, NotScored, PCAFit, Report, TrainingSet
+from vpr_jax.methods.inputs import check_input, with_input
 from vpr_jax.methods.pca import removed_count_fits
 from vpr_jax.methods.rectify import rectifiable
 
@@ -27,8 +28,12 @@ class Settings:
     removed_pcs: int = 0  # leading components removed before whitening (the sweep's
     # removed_pcs: a fit per count)
     rectify: bool = False  # [relu(z), relu(-z)] (vpr_jax.methods.rectify): a fit per value
+    # what the method sees (vpr_jax.methods.inputs): pixels, standardised, patchnorm,
+    # gradients, or parts joined by + (a list: an axis)
+    input: str = "pixels"
 
     def __post_init__(self):
+        check_input(self, "ica")
         n = self.n_components
         checks = (
             (
@@ -126,13 +131,15 @@ def _report(state: ica.ICAState, settings: dict) -> Report:
 
 
 method = rectifiable(
-    Method(
-        fit=fit,
-        encode=encode,
-        settings=Settings,
-        needs=("pca_fit",),
-        random=True,
-        check=check,
-        report=_report,
+    with_input(
+        Method(
+            fit=fit,
+            encode=encode,
+            settings=Settings,
+            needs=("pca_fit",),
+            random=True,
+            check=check,
+            report=_report,
+        )
     )
 )

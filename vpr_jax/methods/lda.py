@@ -10,9 +10,10 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from vpr_jax.encoders import autoencoders as ae
-from vpr_jax.encoders import lda, pca
+from vpr_jax.encoders import lda
 from vpr_jax.errors import UserError
 from vpr_jax.methods.contract import Method, PCAFit, Report, TrainingSet
+from vpr_jax.methods.inputs import check_input, with_input
 from vpr_jax.methods.rectify import rectifiable
 
 
@@ -23,11 +24,13 @@ class Settings:
     n_components: int = 200  # leading principal components of the pair's PCA fit whitened in
     shrinkage: float = 0.1  # towards trace/m x identity: 0 plain whitening, 1 PCA coordinates
     rectify: bool = False  # [relu(z), relu(-z)] (vpr_jax.methods.rectify): a fit per value
-    # true: each image to zero mean and std 1/4 first (a season's global brightness and
-    # contrast gone), whitened in a PCA fit of its own of both seasons' standardised images
-    standardise: bool = False
+    # what the method sees (vpr_jax.methods.inputs): pixels, standardised, patchnorm,
+    # gradients, or parts joined by + (a list: an axis); whitened inside the pair's shared
+    # PCA fit of that input
+    input: str = "pixels"
 
     def __post_init__(self):
+        check_input(self, "lda")
         if self.n_components < 1:
             raise UserError(f"lda.n_components={self.n_components} must be >= 1")
         if not 0 <= self.shrinkage <= 1:
@@ -38,25 +41,18 @@ class Settings:
 
 
 class Standardised(NamedTuple):
-    """An lda fit of standardised images (``lda.standardise``)."""
+    """An lda fit of standardised images, whitened in a PCA fit of its own, as the setting
+    ``lda.standardise`` made them before ``lda.input=standardised`` replaced it: saved
+    folders of it still encode."""
 
     state: lda.LDAState
 
 
-def fit(
-    train, aligned, key, *, pca_fit: PCAFit, n_components: int, shrinkage: float, standardise: bool
-):
+def fit(train, aligned, key, *, pca_fit: PCAFit, n_components: int, shrinkage: float):
     """In all the components the training images hold, when they hold fewer (the shared
-    fit keeps only its numerical rank). Standardised: in the leading ``n_components`` of a
-    PCA fit of both seasons' standardised training images, as an auto-encoder's lda start
-    (``vpr_jax.encoders.autoencoders.lda_start``)."""
-    if not standardise:
-        m = min(n_components, len(pca_fit.state.components))
-        return lda.fit_lda(pca_fit.state, *aligned, m, shrinkage)
-    a, b = (ae.standardise(jnp.asarray(x, jnp.float32)) for x in aligned)
-    both = pca.flatten(jnp.concatenate([a, b]))
-    fitted = pca.fit_pca(both, min(n_components, pca.rank_limit(*both.shape)), seed=0)
-    return Standardised(lda.fit_lda(fitted, a, b, len(fitted.components), shrinkage))
+    fit keeps only its numerical rank)."""
+    m = min(n_components, len(pca_fit.state.components))
+    return lda.fit_lda(pca_fit.state, *aligned, m, shrinkage)
 
 
 def encode(state, images):
@@ -91,13 +87,15 @@ def _report(state, settings: dict) -> Report:
 
 
 method = rectifiable(
-    Method(
-        fit=fit,
-        encode=encode,
-        settings=Settings,
-        needs=("aligned", "pca_fit"),
-        random=False,
-        check=check,
-        report=_report,
+    with_input(
+        Method(
+            fit=fit,
+            encode=encode,
+            settings=Settings,
+            needs=("aligned", "pca_fit"),
+            random=False,
+            check=check,
+            report=_report,
+        )
     )
 )

@@ -38,6 +38,7 @@ from vpr_jax.methods.contract import (
     Report,
     TrainingSet,
 )
+from vpr_jax.methods.inputs import check_input, with_input
 from vpr_jax.methods.rectify import rectifiable
 
 OUTPUTS = ("coefficients", "pixels")
@@ -55,8 +56,12 @@ class Settings:
     # scaled to unit variance, nothing else (PCA whitening: what ica rotates)
     whiten: int = 0
     rectify: bool = False  # [relu(z), relu(-z)] (vpr_jax.methods.rectify): a fit per value
+    # what the method sees (vpr_jax.methods.inputs): pixels, standardised, patchnorm,
+    # gradients, or parts joined by + (a list: an axis)
+    input: str = "pixels"
 
     def __post_init__(self):
+        check_input(self, "pca")
         if self.whiten < 0:
             raise UserError(
                 f"pca.whiten={self.whiten} is negative: use 0 (no whitening) or a count"
@@ -193,15 +198,17 @@ def check(settings: Settings, training: TrainingSet, log) -> Settings | None:
 
 
 method = rectifiable(
-    Method(
-        fit=fit,
-        encode=encode,
-        settings=Settings,
-        # one fit serves every removed count; in coefficients, one encoding too (a suffix each)
-        axes=lambda s: {"removed_pcs": SERVED if s.output == "pixels" or s.whiten else SUFFIX},
-        needs=("pca_fit",),
-        random=False,
-        check=check,
-        report=_report,
+    with_input(
+        Method(
+            fit=fit,
+            encode=encode,
+            settings=Settings,
+            # one fit serves every removed count; in coefficients, one encoding too (a suffix each)
+            axes=lambda s: {"removed_pcs": SERVED if s.output == "pixels" or s.whiten else SUFFIX},
+            needs=("pca_fit",),
+            random=False,
+            check=check,
+            report=_report,
+        )
     )
 )

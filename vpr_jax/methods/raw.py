@@ -1,7 +1,10 @@
-"""raw: the pixels, centred with the training mean; cosine does the L2 normalisation. The
-reference every other method improves on."""
+"""raw: the pixels (or another ``input``), centred with the training mean; cosine does the L2
+normalisation. The reference every other method improves on; ``raw.input=gradients`` is the
+training-free gradient-histogram baseline."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -9,6 +12,19 @@ from jaxtyping import Array, Float
 
 from vpr_jax.encoders import pca
 from vpr_jax.methods.contract import Method
+from vpr_jax.methods.inputs import check_input, with_input
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """``raw.*``."""
+
+    # what the method sees (vpr_jax.methods.inputs): pixels, standardised, patchnorm,
+    # gradients, or parts joined by + (a list: an axis)
+    input: str = "pixels"
+
+    def __post_init__(self):
+        check_input(self, "raw")
 
 
 def fit(train: Float[Array, "n h w"], aligned, key) -> dict:
@@ -20,4 +36,4 @@ def encode(state: dict, images: Float[Array, "n h w"]) -> Float[Array, "n d"]:
     return pca.flatten(images) - state["mean"]
 
 
-method = Method(fit=fit, encode=encode, random=False)
+method = with_input(Method(fit=fit, encode=encode, settings=Settings, random=False))

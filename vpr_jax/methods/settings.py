@@ -25,6 +25,16 @@ from omegaconf.errors import OmegaConfBaseException
 
 from vpr_jax.errors import UserError
 
+# Settings a built-in method no longer has: the old name -> (the setting that replaced it,
+# its value for each old value). A command that gives one is refused naming the new one.
+RENAMED = {
+    "standardise": ("input", {True: "standardised", False: "pixels"}),
+}
+# An old setting's value that gives the same numbers as a new one's: a logdir that recorded
+# it resumes as if it had recorded the new one (lda.standardise=true fitted a PCA of its
+# own, lda.input=standardised uses the pair's shared one: not the same numbers).
+RESUMES_AS = {("standardise", False): ("input", "pixels")}
+
 
 class Combination(NamedTuple):
     """One combination of a method's settings."""
@@ -98,6 +108,14 @@ def _checked(schema: type | None, values: dict, group: str) -> Any:
         return dict(values)
     known = _field_names(schema, values)
     unknown = sorted(set(values) - set(known))
+    renamed = [n for n in unknown if n in RENAMED and RENAMED[n][0] in known]
+    if renamed:
+        old, (new, values_of) = renamed[0], RENAMED[renamed[0]]
+        raise UserError(
+            f"{group}.{old} is now {group}.{new}: use "
+            + " or ".join(f"{group}.{new}={v} (for {str(k).lower()})" for k, v in values_of.items())
+            + " (docs/config.md)"
+        )
     if unknown:
         raise UserError(
             f"{group}.{unknown[0]} is unknown: {group}'s settings are {', '.join(known)} "
@@ -168,7 +186,36 @@ def _unique(combinations: list[Combination], name: str) -> list[Combination]:
 def identity(schema: type | None, effective_settings: dict, extendable: str = "") -> dict:
     """The part of a method's settings that decides its cells' numbers: every setting that
     is not an axis (nor the ``extendable`` one, the variants' list), and which settings
-    are axes. Values added to an axis, or to the variants, only add cells."""
+    are axes. Values added to an axis, or to the variants, only add cells. Settings as an
+    earlier version recorded them read as today's: a setting it did not have yet at its
+    default, an old one that gives the same numbers as a new one under the new one
+    (``RESUMES_AS``)."""
+    effective_settings = as_recorded_today(schema, effective_settings)
     axes = sorted(n for n, v in effective_settings.items() if is_axis(schema, n, v))
     fixed = {n: v for n, v in effective_settings.items() if n not in axes and n != extendable}
     return {**fixed, "axes": axes}
+
+
+def as_recorded_today(schema: type | None, recorded: dict) -> dict:
+    """A method's settings as config.yaml recorded them, with the settings ``schema`` has
+    and the record lacks at their defaults, and old settings that give the same numbers as
+    a new one (``RESUMES_AS``) under the new one (any other stays, and differs). Without a
+    schema: as recorded."""
+    if schema is None:
+        return dict(recorded)
+    fields = {f.name: f for f in dataclasses.fields(schema)}
+    out = {}
+    for name, value in recorded.items():
+        key = (name, value) if isinstance(value, str | int | float | bool) else None
+        if name not in fields and key in RESUMES_AS and RESUMES_AS[key][0] in fields:
+            out.setdefault(*RESUMES_AS[key])
+        else:
+            out[name] = value
+    for name, f in fields.items():
+        if name in out:
+            continue
+        if f.default is not dataclasses.MISSING:
+            out[name] = _plain(f.default)
+        elif f.default_factory is not dataclasses.MISSING:
+            out[name] = _plain(f.default_factory())
+    return out

@@ -13,8 +13,9 @@ from __future__ import annotations
 import dataclasses
 from types import ModuleType
 
-from vpr_jax.encoders import autoencoders, diff_pca, ica, lda, pca
+from vpr_jax.encoders import autoencoders, diff_pca, ica, inputs, lda, pca
 from vpr_jax.encoders.fitted_state import type_name
+from vpr_jax.methods import inputs as inputs_method
 from vpr_jax.methods import lda as lda_method
 from vpr_jax.methods import pca as pca_method
 from vpr_jax.methods import rectify
@@ -28,6 +29,9 @@ BUILTIN_STATE_TYPES: tuple[type, ...] = (
     lda.LDAState,
     lda_method.Standardised,
     rectify.Rectified,
+    inputs.InputState,
+    inputs.Options,
+    inputs_method.WithInput,
     autoencoders.ModelState,
     autoencoders.FAESpec,
     autoencoders.CAESpec,

@@ -72,7 +72,7 @@ def fitted_root(cfg: SweepConfig, logdir: Path) -> Path:
 def identity(cfg: SweepConfig | dict) -> dict:
     """The part of a config (or of its saved YAML) that determines the numbers of every cell,
     as plain YAML data."""
-    out = to_dict(cfg) if isinstance(cfg, SweepConfig) else plain(cfg)
+    out = to_dict(cfg) if isinstance(cfg, SweepConfig) else _with_new_keys(plain(cfg))
     # A method's settings (<name>.*, plugin.<name>.*) and precomputed.<name>.* change only
     # their method's cells: compared per method (check_same_config)
     skipped = (*EXTENDABLE_KEYS, *NAMES, "plugin", "precomputed")
@@ -84,6 +84,20 @@ def identity(cfg: SweepConfig | dict) -> dict:
     for group, keys in AXIS_KEYS.items():
         for key in keys:
             out.get(group, {}).pop(key, None)
+    return out
+
+
+def _with_new_keys(saved: dict, defaults: dict | None = None) -> dict:
+    """A config.yaml an earlier version wrote, with the keys it did not have yet (a group
+    such as ``gradients``) at their defaults: what that version did, before the key was
+    there to change it."""
+    defaults = to_dict(SweepConfig()) if defaults is None else defaults
+    out = dict(saved)
+    for key, value in defaults.items():
+        if key not in out:
+            out[key] = value
+        elif isinstance(value, dict) and value and isinstance(out[key], dict):
+            out[key] = _with_new_keys(out[key], value)
     return out
 
 
