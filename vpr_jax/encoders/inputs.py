@@ -26,7 +26,6 @@ from jaxtyping import Array, Float
 
 from vpr_jax.data.preprocess import patch_normalize_jax
 from vpr_jax.encoders import gradients
-from vpr_jax.encoders.autoencoders import standardise
 from vpr_jax.encoders.input_parts import IMAGE_PARTS, PARTS, parts_of
 
 
@@ -59,6 +58,9 @@ def part(name: str, images: Float[Array, "n h w"], options: Options) -> Float[Ar
     if name == "pixels":
         return images
     if name == "standardised":
+        # the auto-encoders' own; imported here: flax is no cost of a sweep without them
+        from vpr_jax.encoders.autoencoders import standardise
+
         return standardise(images)
     if name == "patchnorm":
         return patch_normalize_jax(images, options.patch, options.rounded)
