@@ -164,3 +164,27 @@ def test_a_logdir_from_before_inputs_resumes_and_a_changed_one_is_refused(tmp_pa
     config["lda"]["standardise"] = True
     (logdir / "config.yaml").write_text(yaml.safe_dump(config))
     assert_one_line_error(run_here(*args, f"logdir={logdir}"), "different configuration", "lda")
+
+
+@pytest.mark.parametrize(
+    ("field", "claim"), [("bins", 10**9), ("cell", 0), ("norm", "L3")], ids=str
+)
+def test_a_saved_input_claiming_options_no_image_allows_is_refused(
+    inputs_sweep, tmp_path, field, claim
+):
+    """A skeleton is data: options that would make the histograms loop or allocate without
+    bound (a billion bins), or fail inside JAX, are one line at load, nothing computed."""
+    import shutil
+
+    from vpr_jax.errors import UserError
+
+    with open(inputs_sweep / "encoders.csv", newline="") as f:
+        folders = {e["folder"].rsplit("/", 1)[-1]: e["folder"] for e in csv.DictReader(f)}
+    folder = tmp_path / "raw_input=gradients"
+    shutil.copytree(folders["raw_input=gradients"], folder)
+    skeleton_path = folder / "state" / "skeleton.json"
+    skeleton = json.loads(skeleton_path.read_text())
+    skeleton["fields"]["input"]["static"]["options"]["fields"][field] = claim
+    skeleton_path.write_text(json.dumps(skeleton))
+    with pytest.raises(UserError, match="outside what an image allows"):
+        load_encoder(folder)

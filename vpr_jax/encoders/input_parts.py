@@ -4,7 +4,6 @@ before anything is loaded (``vpr_jax.encoders.inputs`` computes them)."""
 from __future__ import annotations
 
 PARTS = ("pixels", "standardised", "patchnorm", "gradients")
-IMAGE_PARTS = ("pixels", "standardised", "patchnorm")  # image-shaped: a convolution takes them
 
 
 def parts_of(name: str) -> tuple[str, ...]:

@@ -26,7 +26,7 @@ from jaxtyping import Array, Float
 
 from vpr_jax.data.preprocess import patch_normalize_jax
 from vpr_jax.encoders import gradients
-from vpr_jax.encoders.input_parts import IMAGE_PARTS, PARTS, parts_of
+from vpr_jax.encoders.input_parts import PARTS, parts_of
 
 
 class Options(NamedTuple):
@@ -41,6 +41,7 @@ class Options(NamedTuple):
 
 
 DEFAULTS = Options()
+MAX_SIDE, MAX_BINS = 64, 360  # a cell, block or patch side in pixels or cells; bins
 
 
 @jax.tree_util.register_dataclass
@@ -51,6 +52,21 @@ class InputState:
     scales: Float[Array, " p"]  # one per part: 1 / sqrt(its total training variance)
     parts: tuple[str, ...] = dataclasses.field(metadata={"static": True})
     options: Options = dataclasses.field(metadata={"static": True})
+
+    def __post_init__(self):
+        """A saved folder's claims checked before anything computes with them (a file is
+        data): known parts, and options in the ranges a 32x64 image allows, so no file
+        makes the histograms loop or allocate without bound. ValueError otherwise."""
+        parts_of("+".join(self.parts))
+        o = self.options
+        if not (
+            1 <= o.cell <= MAX_SIDE
+            and 2 <= o.bins <= MAX_BINS
+            and 1 <= o.block <= MAX_SIDE
+            and o.norm in gradients.NORMS
+            and 1 <= o.patch <= MAX_SIDE
+        ):
+            raise ValueError(f"input options {tuple(o)} are outside what an image allows")
 
 
 def part(name: str, images: Float[Array, "n h w"], options: Options) -> Float[Array, "n ..."]:
@@ -112,8 +128,3 @@ def n_values(name: str, image_shape: tuple[int, int], options: Options = DEFAULT
         "gradients": gradients.n_features(h, w, options.cell, options.bins, options.block),
     }
     return sum(sizes.get(p, h * w) for p in parts_of(name))
-
-
-def is_image(name: str) -> bool:
-    """Whether the input keeps the image's shape (a convolution can take it)."""
-    return name in IMAGE_PARTS
