@@ -67,13 +67,13 @@ FITTED = re.compile(
 )
 
 
-def sweep(args: list[str], logdir: Path, *, cores: set[int] | None = None, env=None) -> float:
+def sweep(args: list[str], logdir: Path, *, cores: set[int] | None = None) -> float:
     """``python -m experiments.sweep ARGS logdir=...`` (checkpoints beside it) in a fresh
     process, held to ``cores`` if given: its wall seconds. Exits with its stderr if it fails."""
-    return _together([[*args, f"logdir={logdir}"]], logdir, cores=[cores], env=env)
+    return _together([[*args, f"logdir={logdir}"]], logdir, cores=[cores])
 
 
-def _together(argvs, logdir: Path, *, cores, env=None) -> float:
+def _together(argvs, logdir: Path, *, cores) -> float:
     """Every sweep of ``argvs`` started at once (the same logdir's checkpoints), each held
     to its ``cores``: the wall seconds until the last ends."""
     checkpoints = f"train.checkpoint_dir={logdir.parent / 'checkpoints'}"
@@ -83,7 +83,7 @@ def _together(argvs, logdir: Path, *, cores, env=None) -> float:
         subprocess.Popen(
             [sys.executable, "-m", "experiments.sweep", *argv, checkpoints],
             cwd=REPO,
-            env={**os.environ, "PYTHONPATH": str(REPO), **(env or {})},
+            env={**os.environ, "PYTHONPATH": str(REPO)},
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,
