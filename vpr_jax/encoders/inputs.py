@@ -18,6 +18,7 @@ A single part is left as it is, unscaled: ``pixels`` gives back the images thems
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import NamedTuple
 
 import jax
@@ -69,6 +70,7 @@ class InputState:
             raise ValueError(f"input options {tuple(o)} are outside what an image allows")
 
 
+@functools.partial(jax.jit, static_argnums=(0, 2))
 def part(name: str, images: Float[Array, "n h w"], options: Options) -> Float[Array, "n ..."]:
     """One part of the input of ``images``: (n, h, w) for an image part, (n, f) else."""
     if name == "pixels":
@@ -96,12 +98,14 @@ def fit(name: str, train: Float[Array, "n h w"], options: Options = DEFAULTS) ->
     return InputState(jnp.stack(scales).astype(jnp.float32), parts, options)
 
 
+@jax.jit
 def total_variance(x: Float[Array, "n f"]) -> Float[Array, ""]:
     """The sum of the features' variances over the rows (each centred with its mean)."""
     centred = x - jnp.mean(x, axis=0)
     return jnp.sum(centred * centred) / x.shape[0]
 
 
+@jax.jit
 def apply(state: InputState, images: Float[Array, "n h w"]) -> Float[Array, "n ..."]:
     """The input of ``images``: a single part's own shape; a combination (n, f), its parts'
     scaled values side by side."""
