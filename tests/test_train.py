@@ -241,3 +241,15 @@ def test_a_checkpoint_of_another_format_is_refused_and_left_alone(data, tmp_path
         with pytest.raises(UserError, match="another format .*use a new folder"):
             attempt()
     assert {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()} == before
+
+
+def test_what_orbax_says_while_saving_reaches_file_descriptor_2_under_a_redirected_stderr(capfd):
+    """A save that succeeds passes on what was written to stderr meanwhile, also where
+    sys.stderr is another stream (a sweep's main run with its output captured)."""
+    import contextlib
+    import io
+    import os
+
+    with contextlib.redirect_stderr(io.StringIO()), checkpoints.orbax_noise_held():
+        os.write(2, b"orbax: a warning\n")
+    assert capfd.readouterr().err == "orbax: a warning\n"

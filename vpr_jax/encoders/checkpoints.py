@@ -182,9 +182,10 @@ def orbax_noise_held():
         _restore_stderr(saved)
         held.seek(0)
         noise = held.read()
-    if noise:
-        sys.stderr.buffer.write(noise)
-        sys.stderr.flush()
+    if noise:  # back to file descriptor 2, where it was written (sys.stderr may be
+        # another stream by now, as under contextlib.redirect_stderr, without a buffer)
+        with os.fdopen(os.dup(2), "wb") as out:
+            out.write(noise)
 
 
 def _settle(held, quiet_s: float = 0.3, limit_s: float = 3.0) -> None:
