@@ -30,8 +30,8 @@ core each (``threads=share``; its fits: raw, pca and ica per pair, ica once per 
 rest is its wall time less the greedy schedule of its fits on two workers).
 
 ``--tiny`` (for the tests): a 240-frame route with raw and pca and two seeds of ica, one
-pair; the two workers' share run stands for the default one too (the same code) and for the
-route's projection; the figures mean nothing.
+pair; the two workers' share run stands for the one-worker and the default runs too (the
+same code, other keys) and for both projections; the figures mean nothing.
 """
 
 from __future__ import annotations
@@ -183,11 +183,14 @@ def main() -> None:
         one = sweep(args, root / "one_process")
         share = [*local, "cluster.threads=share"]
         one_worker = [*share, "cluster.workers=1", "cluster.cores_per_worker=1"]
-        worker = sweep([*args, *one_worker], root / "one_worker")
         workers = sweep([*args, *share, "cluster.workers=2"], root / "two_workers")
-        if opts.tiny:  # the same code as the run above; a sweep is most of a tiny run
-            default = workers
+        # --tiny: the same code as the run above, with other keys; a sweep (a Ray started
+        # and stopped) is most of a tiny run, and the tests check pinning on their own
+        one_worker_dir = root / ("two_workers" if opts.tiny else "one_worker")
+        if opts.tiny:
+            worker = default = workers
         else:
+            worker = sweep([*args, *one_worker], one_worker_dir)
             default = sweep([*args, *local, "cluster.workers=2"], root / "two_workers_node")
         spmd = distributed(args, root / "distributed", cores[:2])
         for name, wall in (
@@ -201,7 +204,7 @@ def main() -> None:
         speed_up("2 workers over 1 worker", worker / workers, 1.7)
         speed_up("2 workers over one process", one / workers, 1.0)
         speed_up("2 workers (threads=node) over one process", one / default, 1.0)
-        projection(" ".join(args), worker, fit_seconds(root / "one_worker"), 1)
+        projection(" ".join(args), worker, fit_seconds(one_worker_dir), 2 if opts.tiny else 1)
         if opts.tiny:  # the route's projection from the two workers' tiny run
             route_wall, route_dir = workers, root / "two_workers"
         else:

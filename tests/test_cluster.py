@@ -16,7 +16,13 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import PROCESS_TIMEOUT_S, assert_one_line_error, run_here, started
+from tests.conftest import (
+    PROCESS_TIMEOUT_S,
+    assert_one_line_error,
+    one_ray_at_a_time,
+    run_here,
+    started,
+)
 
 ROUTE = [
     "data.n_frames=240",
@@ -52,25 +58,25 @@ def _rows(logdir) -> dict[str, dict]:
         return {row["run"]: row for row in csv.DictReader(f)}
 
 
-@pytest.fixture
-def two_nodes(tmp_path, monkeypatch, one_ray_at_a_time):
-    """A head and a second node of one CPU each; its workers import the user's module
-    folder ``tmp_path/mine`` as a user's would (PYTHONPATH). Shut down however the test
-    ends."""
+@pytest.fixture(scope="module")
+def two_nodes(tmp_path_factory):
+    """A head and a second node of one CPU each, started once for this module's tests (a
+    start costs seconds); its workers import the user's module folder ``mine`` as a user's
+    would (PYTHONPATH). Shut down however the tests end."""
     from ray.cluster_utils import Cluster
 
-    mine = tmp_path / "mine"
-    mine.mkdir()
+    mine = tmp_path_factory.mktemp("mine")
     (mine / "broken_methods.py").write_text(textwrap.dedent(BROKEN))
-    monkeypatch.setenv("PYTHONPATH", f"{mine}:{sys.path[0]}")
-    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")  # nothing sent off this machine
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
-    try:
-        cluster.add_node(num_cpus=1)
-        cluster.wait_for_nodes()
-        yield cluster, mine
-    finally:
-        cluster.shutdown()
+    with one_ray_at_a_time(tmp_path_factory), pytest.MonkeyPatch.context() as env:
+        env.setenv("PYTHONPATH", f"{mine}:{sys.path[0]}")
+        env.setenv("RAY_USAGE_STATS_ENABLED", "0")  # nothing sent off this machine
+        cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+        try:
+            cluster.add_node(num_cpus=1)
+            cluster.wait_for_nodes()
+            yield cluster, mine
+        finally:
+            cluster.shutdown()
 
 
 def test_a_two_node_cluster_gives_the_one_process_rows(two_nodes, tmp_path):
