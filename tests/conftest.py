@@ -222,6 +222,7 @@ def assert_one_line_error(
     return lines[0]
 
 
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's: without it (-p no:xdist), unused
 def pytest_xdist_auto_num_workers(config):
     """``-n auto`` (pyproject.toml): one test process more than the cores this one may use.
     Tests wait on their subprocesses, on Ray's start and on signals, and a spare process
