@@ -40,7 +40,7 @@ from vpr_jax.config import TrainConfig
 from vpr_jax.data.augment import AugmentConfig
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.encoders.train_programs import make_optimizer, make_train_step
-from vpr_jax.methods import cae
+from vpr_jax.methods import cae, training
 
 TINY_EPOCH_STEPS, TINY_BATCH = 2, 16
 
@@ -55,7 +55,7 @@ def _cae(model: str, **changes) -> ae.CAESpec:
         kernel_sizes=tuple(a["kernel_sizes"]),
         code_channels=a["code_channels"],
         space_to_depth=a["space_to_depth"],
-        standardise=settings.standardise,
+        standardise=training.is_standardised(settings.input),
     )
 
 

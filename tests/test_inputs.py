@@ -166,6 +166,43 @@ def test_a_logdir_from_before_inputs_resumes_and_a_changed_one_is_refused(tmp_pa
     assert_one_line_error(run_here(*args, f"logdir={logdir}"), "different configuration", "lda")
 
 
+def test_an_autoencoder_s_old_input_and_standardise_resume_as_one_input(tmp_path):
+    """fae.input and fae.standardise, recorded apart before they became one input: a logdir
+    that recorded the default pair (pixels, true) resumes as ``standardised``; (pixels,
+    false) is another input and refused. The model's checkpoint still names its input as
+    checkpoints always have (pixels, standardised), so a model trained before resumes."""
+    import yaml
+
+    from vpr_jax.encoders import checkpoints
+
+    args = [
+        *TINY_ROUTE,
+        "season_pairs=summer-fall",
+        "methods=[fae]",
+        "fae.objective=reconstruct",
+        "fae.hidden=8",
+        "fae.epochs=1",
+    ]
+    logdir = tmp_path / "runs"
+    first = run_here(*args, f"logdir={logdir}")
+    assert first.returncode == 0, first.stderr[-2000:]
+    meta = checkpoints.read_meta(
+        tmp_path / "checkpoints" / "runs" / "summer-fall" / "fae" / "training"
+    )
+    model = meta["identity"]["model"]
+    assert (model["input"], model["standardise"]) == ("pixels", True)
+    config = yaml.safe_load((logdir / "config.yaml").read_text())
+    assert config["fae"]["input"] == "standardised"
+    config["fae"].update(input="pixels", standardise=True)
+    (logdir / "config.yaml").write_text(yaml.safe_dump(config))
+    again = run_here(*args, f"logdir={logdir}")
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "resuming: 1 of 1 cells already in results.csv" in again.stdout
+    config["fae"]["standardise"] = False
+    (logdir / "config.yaml").write_text(yaml.safe_dump(config))
+    assert_one_line_error(run_here(*args, f"logdir={logdir}"), "different configuration", "fae")
+
+
 @pytest.mark.parametrize(
     ("field", "claim"), [("bins", 10**9), ("cell", 0), ("norm", "L3")], ids=str
 )

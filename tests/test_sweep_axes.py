@@ -178,7 +178,7 @@ def test_training_settings_and_inputs_are_axes_and_the_baseline_a_key(tmp_path):
         "methods=[raw,lda,fae,cae]",
         "fae.learning_rate=[0.001,0.0001]",
         "fae.objective=cross_season",
-        "cae.input=[pixels,residual]",
+        "cae.input=[standardised,residual]",
         "cae.objective=reconstruct",
         *TINY_MODELS,
         "train.epochs=1",
@@ -189,7 +189,7 @@ def test_training_settings_and_inputs_are_axes_and_the_baseline_a_key(tmp_path):
     fae = [r for r in rows if r.method == "fae"]
     assert sorted(r.setting for r in fae) == ["learning_rate=0.0001", "learning_rate=0.001"]
     cae = [r for r in rows if r.method == "cae"]
-    assert sorted(r.setting for r in cae) == ["input=pixels", "input=residual"]
+    assert sorted(r.setting for r in cae) == ["input=residual", "input=standardised"]
     for mine in (fae, cae):
         (chosen,) = [r for r in mine if r.selected]
         best = max((r.val_recall_at_1, r.val_margin) for r in mine)

@@ -4,12 +4,14 @@ their starts, and the method a model's architecture makes; a fit trains one mode
 
 The model learns from both seasons' training images: the images themselves for
 ``reconstruct``, the aligned places' pairs for the paired objectives
-(``vpr_jax.encoders.objectives``); each objective is rows of its own. With
-``input=residual`` it first removes the leading ``residual_pcs`` components of the pair's
-PCA fit. Its training settings (``TrainingSettings``: learning rate, augmentation,
-temperature...) are its own, each ``train.*``'s value unless given, and a list for one is a
-sweep axis like any other (``train.augment=auto``: ``augment=[true,false]``). Every
-objective starts from the same initial weights (the key of the seed and the method's name).
+(``vpr_jax.encoders.objectives``); each objective is rows of its own. What it sees is
+its ``input`` (``training.INPUTS``): with a residual input it first removes the leading
+``residual_pcs`` components of the pair's PCA fit, then standardises each image
+(``residual``) or not (``residual_pixels``). Its training settings (``TrainingSettings``:
+learning rate, augmentation, temperature...) are its own, each ``train.*``'s value unless
+given, and a list for one is a sweep axis like any other (``train.augment=auto``:
+``augment=[true,false]``). Every objective starts from the same initial weights (the key of
+the seed and the method's name).
 """
 
 from __future__ import annotations
@@ -35,9 +37,8 @@ from vpr_jax.methods.contract import (
     TrainingSet,
     Validation,
 )
-from vpr_jax.methods.training import Fit, Model, fit_model
+from vpr_jax.methods.training import INPUTS, Fit, Model, fit_model, is_residual
 
-INPUTS = ("pixels", "residual")  # what the model sees: <method>.input
 # How the weights start (<method>.init): drawn, or at a linear solution of the model's own
 # inputs (``ae.pca_start``, ``ae.lda_start``): each direction a unit beside its negative.
 INITS = ("random", "pca", "whitened_pca", "lda")
@@ -99,7 +100,9 @@ def check_common(group: str, settings: Any) -> None:
         ),
         (
             settings.input in INPUTS,
-            f"{group}.input={settings.input} is unknown: use {' or '.join(INPUTS)}",
+            f"{group}.input={settings.input} is not one of the auto-encoders' inputs: use "
+            f"{', '.join(INPUTS)} (gradients, patchnorm and combinations are the linear "
+            "methods': an auto-encoder reconstructs images)",
         ),
         (
             settings.init in INITS,
@@ -151,7 +154,7 @@ def check(group: str, settings: Any, training: TrainingSet, log) -> Any:
     batch splits its examples evenly over the devices (a paired example is a place's two
     images)."""
     settings = without_aligned_places(group, settings, training, log)
-    if settings.input == "residual":
+    if is_residual(settings.input):
         k, limit = settings.residual_pcs, training.pca_limit
         if k >= limit:
             raise UserError(
@@ -174,7 +177,7 @@ def needs(settings: Any) -> tuple[str, ...]:
     """The validation places, a training folder and the devices; a residual input the
     pair's PCA fit too."""
     return ("validation", "training", "mesh") + (
-        ("pca_fit",) if settings is not None and settings.input == "residual" else ()
+        ("pca_fit",) if settings is not None and is_residual(settings.input) else ()
     )
 
 

@@ -11,7 +11,7 @@ import dataclasses
 
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.errors import UserError
-from vpr_jax.methods import autoencoder
+from vpr_jax.methods import autoencoder, training
 from vpr_jax.shapes import IMAGE_SHAPE
 
 # fast: 2x2 pixel blocks to channels (no convolution at full resolution), two 3x3 levels of
@@ -45,9 +45,9 @@ class Settings(autoencoder.TrainingSettings):
     kernel_sizes: tuple[int, ...] | None = None  # one per level
     code_channels: int | None = None  # code = (32 / 2^levels / f) x (64 / ...) x this values
     space_to_depth: int | None = None  # f: f x f pixel blocks become channels first (1: none)
-    standardise: bool = True  # each image to zero mean, std 1/4 before the encoder
     objective: tuple[str, ...] = ("reconstruct", "cross_season")  # as fae.objective
-    input: str = "pixels"  # pixels | residual: as fae.input
+    # as fae.input; pixels and residual_pixels: the image as it is (no centring)
+    input: str = "standardised"
     residual_pcs: int = 10  # as fae.residual_pcs
     # random: the convolutions alone, drawn; pca, whitened_pca or lda: a linear branch of
     # linear_units units beside them, started as fae.init starts the FAE, and the code
@@ -98,7 +98,7 @@ def _model(train, aligned, s: dict) -> autoencoder.Model:
             kernel_sizes=tuple(a["kernel_sizes"]),
             code_channels=a["code_channels"],
             space_to_depth=a["space_to_depth"],
-            standardise=s["standardise"],
+            standardise=training.is_standardised(s["input"]),
             removed=removed,
             linear=s["linear_units"] if s["init"] != "random" else 0,
         ),

@@ -10,7 +10,7 @@ import numpy as np
 
 from vpr_jax.encoders import autoencoders as ae
 from vpr_jax.errors import UserError
-from vpr_jax.methods import autoencoder
+from vpr_jax.methods import autoencoder, training
 from vpr_jax.methods.contract import Report
 
 
@@ -22,10 +22,12 @@ class Settings(autoencoder.TrainingSettings):
     # One cell per objective: reconstruct (the paper's), cross_season and/or contrastive
     # (see vpr_jax.encoders.objectives); one value or a list.
     objective: tuple[str, ...] = ("reconstruct", "cross_season")
-    # pixels: the images; residual: the images less the pair's leading residual_pcs
-    # principal components (the code cannot be spent on the condition PCA change removal
-    # throws away).
-    input: str = "pixels"
+    # standardised: each image to zero mean and std 1/4 (a season's brightness and contrast
+    # gone); pixels: each image centred at input_centre; residual: the images less the
+    # pair's leading residual_pcs principal components (the code cannot be spent on the
+    # condition PCA change removal throws away), then standardised; residual_pixels: the
+    # residual centred (autoencoder.INPUTS)
+    input: str = "standardised"
     residual_pcs: int = 10  # components a residual input removes (a list: an axis)
     # random: drawn weights; pca: the linear start, the hidden layer at the PCA solution of
     # its own inputs for hidden // 2 components, each unit beside its negative
@@ -34,10 +36,9 @@ class Settings(autoencoder.TrainingSettings):
     # whitening of its inputs in hidden // 2 components (the lda method's descriptor; needs
     # aligned training places).
     init: str = "random"
-    # Subtracted from every pixel before the hidden layer; 0 is the paper's layer, on which
-    # most ReLU units die (see vpr_jax.encoders.autoencoders.FAE).
+    # Subtracted from every pixel before the hidden layer (input=pixels or residual_pixels);
+    # 0 is the paper's layer, on which most ReLU units die (vpr_jax.encoders.autoencoders.FAE)
     input_centre: float = 0.5
-    standardise: bool = True  # each image to zero mean, std 1/4 instead (input_centre unused)
     # all: every weight trains; scale: the hidden layer stays at its start (init) and only
     # a scale and a shift per unit train on top of it: 2 x hidden numbers that cannot
     # memorise the places (a list: an axis, validation chooses)
@@ -69,7 +70,7 @@ def _model(train, aligned, s: dict) -> autoencoder.Model:
         spec=lambda removed: ae.FAESpec(
             hidden=s["hidden"],
             centre=s["input_centre"],
-            standardise=s["standardise"],
+            standardise=training.is_standardised(s["input"]),
             removed=removed,
             update=s["update"],
         ),

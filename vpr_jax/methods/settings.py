@@ -34,6 +34,14 @@ RENAMED = {
 # it resumes as if it had recorded the new one (lda.standardise=true fitted a PCA of its
 # own, lda.input=standardised uses the pair's shared one: not the same numbers).
 RESUMES_AS = {("standardise", False): ("input", "pixels")}
+# An auto-encoder (a schema with residual_pcs) recorded its input and whether it
+# standardised apart; the pair is one input now, with the same numbers.
+AUTOENCODER_INPUT_OF = {
+    ("pixels", True): "standardised",
+    ("pixels", False): "pixels",
+    ("residual", True): "residual",
+    ("residual", False): "residual_pixels",
+}
 
 
 class Combination(NamedTuple):
@@ -111,9 +119,15 @@ def _checked(schema: type | None, values: dict, group: str) -> Any:
     renamed = [n for n in unknown if n in RENAMED and RENAMED[n][0] in known]
     if renamed:
         old, (new, values_of) = renamed[0], RENAMED[renamed[0]]
+        residual = (
+            f"; with {group}.input=residual: residual (for true) or residual_pixels (for false)"
+            if "residual_pcs" in known
+            else ""
+        )
         raise UserError(
             f"{group}.{old} is now {group}.{new}: use "
             + " or ".join(f"{group}.{new}={v} (for {str(k).lower()})" for k, v in values_of.items())
+            + residual
             + " (docs/config.md)"
         )
     if unknown:
@@ -204,6 +218,7 @@ def as_recorded_today(schema: type | None, recorded: dict) -> dict:
     if schema is None:
         return dict(recorded)
     fields = {f.name: f for f in dataclasses.fields(schema)}
+    recorded = _autoencoder_input_today(fields, recorded)
     out = {}
     for name, value in recorded.items():
         key = (name, value) if isinstance(value, str | int | float | bool) else None
@@ -218,4 +233,21 @@ def as_recorded_today(schema: type | None, recorded: dict) -> dict:
             out[name] = _plain(f.default)
         elif f.default_factory is not dataclasses.MISSING:
             out[name] = _plain(f.default_factory())
+    return out
+
+
+def _autoencoder_input_today(fields: dict, recorded: dict) -> dict:
+    """An auto-encoder's ``input`` and ``standardise`` as recorded before they were one
+    setting: today's input (``AUTOENCODER_INPUT_OF``), each value of an axis mapped. Other
+    records as they are."""
+    standardise = recorded.get("standardise")
+    if "residual_pcs" not in fields or "standardise" in fields or not isinstance(standardise, bool):
+        return recorded
+    old = recorded.get("input", "pixels")
+    values = list(old) if isinstance(old, list | tuple) else [old]
+    if not all(isinstance(v, str) and (v, standardise) in AUTOENCODER_INPUT_OF for v in values):
+        return recorded
+    today = [AUTOENCODER_INPUT_OF[v, standardise] for v in values]
+    out = {k: v for k, v in recorded.items() if k != "standardise"}
+    out["input"] = today if isinstance(old, list | tuple) else today[0]
     return out

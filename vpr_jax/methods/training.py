@@ -28,6 +28,35 @@ def training_values(values: dict) -> dict:
     return {k: v for k, v in values.items() if k in names}
 
 
+# What the model sees (<method>.input), steps applied in this order: the residual after the
+# pair's leading residual_pcs components (residual inputs), then each image standardised
+# (zero mean, std 1/4: standardised, residual) or not (pixels, residual_pixels: the FAE
+# centres them at fae.input_centre, the CAE takes them as they are). The linear methods'
+# other inputs (gradients, patchnorm, combinations) are no images a decoder reconstructs.
+INPUTS = ("standardised", "pixels", "residual", "residual_pixels")
+
+
+def is_residual(input: str) -> bool:
+    """Whether the input removes the pair's leading components first."""
+    return input in ("residual", "residual_pixels")
+
+
+def is_standardised(input: str) -> bool:
+    """Whether each image is standardised before the model (else centred)."""
+    return input in ("standardised", "residual")
+
+
+def recorded_as_before(values: dict) -> dict:
+    """A fit's values as checkpoints have always recorded them in their identity: the input
+    as ``pixels`` or ``residual`` and ``standardise`` beside it, so a model trained before
+    the two became one input resumes."""
+    return {
+        **values,
+        "input": "residual" if is_residual(values["input"]) else "pixels",
+        "standardise": is_standardised(values["input"]),
+    }
+
+
 class Model(NamedTuple):
     """What tells one auto-encoder from the other: its architecture and its start."""
 
@@ -55,7 +84,7 @@ def fit_model(
     pca_fit: PCAFit | None,
 ) -> ae.ModelState:
     """Train (or resume, or restore) the fit's model and keep its best epoch."""
-    k = fit.values["residual_pcs"] if fit.values["input"] == "residual" else 0
+    k = fit.values["residual_pcs"] if is_residual(fit.values["input"]) else 0
     removal = None
     if k:
         state = pca_fit.state
@@ -113,7 +142,7 @@ def _train(
         checkpoint_dir=folder,
         identity={
             **training.identity,
-            "model": plain(fit.values),
+            "model": plain(recorded_as_before(fit.values)),
             "train": training_identity(settings),
         },
         log=log,
