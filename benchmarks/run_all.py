@@ -16,6 +16,12 @@ Rows (paper's sizes: 5,000 x 2,048 training images, 3,569 queries x 3,569 databa
                              at matching.precision=default vs float32            <= 1.1x
                              (the same on a CPU; TF32 products on a recent NVIDIA GPU)
   sequence matching, ds=10   vs the same search in numpy, a loop over queries    <= 1.0x
+  inputs (what a method sees: vpr_jax.encoders.inputs), the paper's training images:
+                             raw's encode on gradients and on standardised+gradients vs
+                             the paper's Table 5 PCA row (0.1 ms an image)           <= 1.0x;
+                             the shared PCA fit (200 components, lda's) on each vs the
+                             same fit on pixels, its values beside it <= their ratio;
+                             the transform of the training images vs that fit        <= 1.0x
   encode ms/image            vs the paper's Table 5 (GTX 1060): auto-encoders <= 0.1x;
                              PCA and ICA <= 1.0x: projecting onto all 2,048
                              components is 8.4 MFLOP an image, and 0.1x of the paper's 0.1 ms
@@ -73,10 +79,11 @@ from scaling import measure as measure_scaling
 from scaling import plot as plot_scaling
 
 from vpr_jax.encoders import autoencoders as ae
-from vpr_jax.encoders import ica, pca
+from vpr_jax.encoders import ica, inputs, pca
 from vpr_jax.evaluation.matching import top_k_matches
 from vpr_jax.files import atomic_write_text
 from vpr_jax.method_table import METHODS
+from vpr_jax.methods import raw as raw_method
 from vpr_jax.outputs.results import read_results
 from vpr_jax.precision import f32_matmul
 
@@ -86,6 +93,7 @@ PAPER_TABLE_4_S = sum(
     int(h) * 3600 + int(m) * 60 + int(s) for h, m, s in (t.split(":") for t in PAPER_TABLE_4)
 )
 PROTOCOL_GOAL_S = 300.0
+LDA_COMPONENTS = 200  # lda.n_components's default: the shared PCA fit's size in input_rows
 FULL_ROUTE_GOAL_GIB = 2.5
 # --tiny's protocol: preset=paper on a 400-place route (4,000 frames, every 10th), one pair,
 # a linear and a trained method, two removed-PC counts, a tiny FAE trained for one epoch:
@@ -230,6 +238,32 @@ def encoder_rows(table: Table, db, query, repeats: int) -> None:
         table.add(f"encode {name}", ms, seed_ms, "seed Table 5", 0.1, "ms")
 
 
+def input_rows(table: Table, train, db, query, repeats: int) -> None:
+    """What an input costs (module docstring): ``train``, ``db`` and ``query`` whole
+    images, flattened. The PCA fit is the one pca, ica and lda share, in lda's default 200
+    leading components (``auto`` picks the solver: subspace iteration for so few)."""
+    shape = ae.IMAGE_SHAPE
+    images = train.reshape(len(train), *shape)
+    both = np.concatenate([db, query]).reshape(-1, *shape)
+    raw = raw_method.method
+    k = min(LDA_COMPONENTS, len(train) - 1)
+    _, on_pixels = timed(lambda: pca.fit_pca(train, k), repeats)
+    for name in ("gradients", "standardised+gradients"):
+        state = inputs.fit(name, images)
+        values = np.asarray(inputs.apply(state, images))
+        d = values.shape[1]
+        fitted = raw.fit(images, None, None, input=name)
+        _, enc = timed(lambda fitted=fitted: raw.encode(fitted, both), repeats)
+        table.add(f"encode raw on {name} ({d:,} values)", 1000 * enc / len(both), 0.1,
+                  "seed Table 5 PCA", 1.0, "ms")  # fmt: skip
+        _, fit = timed(lambda values=values: pca.fit_pca(values, k), repeats)
+        ratio = round(d / train.shape[1], 2)
+        table.add(f"  PCA fit on it, {k} of {len(values):,} x {d:,}", fit, on_pixels,
+                  f"on pixels ({train.shape[1]:,} values)", ratio)  # fmt: skip
+        _, transform = timed(lambda state=state: inputs.apply(state, images), repeats)
+        table.add("  the transform of the training images", transform, fit, "that fit", 1.0)
+
+
 def protocol_row(table: Table, extra: list[str], tiny: bool) -> None:
     """``preset=paper`` (``tiny``: on ``TINY_PROTOCOL``'s route) with ``extra`` overrides."""
     with tempfile.TemporaryDirectory(prefix="vpr_jax-bench-") as tmp:
@@ -330,6 +364,9 @@ def main() -> None:
     if args.tiny:  # the linear rows' tiny data keep every 8th pixel: whole images here
         _, db, query = paper_route(**route_sizes(args.tiny, images=True))
     encoder_rows(table, db, query, args.repeats)
+    if args.tiny:  # the training images whole too
+        train, _, _ = paper_route(**route_sizes(args.tiny, images=True))
+    input_rows(table, train, db, query, args.repeats)
     if not args.skip_protocol:
         protocol_row(table, args.protocol_args.split(), args.tiny)
     if args.tiny and not args.skip_full_route:

@@ -111,6 +111,10 @@ def test_run_all(device_check_run):
         "encode ICA (8)",
         "encode CAE calc (64,128) c8",
         "paper protocol, tiny",
+        "encode raw on gradients (6,804 values)",
+        "encode raw on standardised+gradients (8,852 values)",
+        "  PCA fit on it, 200 of 300 x 8,852",
+        "  the transform of the training images",
     ):
         line_matching(table, "^" + re.escape(row) + r"\s.*\d+\.\d{3}x\s+<= [\d.]+x\s+(yes|no)")
     assert "whole route (preset=full) peak RSS: left out with --tiny" in out

@@ -26,7 +26,7 @@ class Settings(autoencoder.TrainingSettings):
     # gone); pixels: each image centred at input_centre; residual: the images less the
     # pair's leading residual_pcs principal components (the code cannot be spent on the
     # condition PCA change removal throws away), then standardised; residual_pixels: the
-    # residual centred (autoencoder.INPUTS)
+    # residual centred (training.INPUTS)
     input: str = "standardised"
     residual_pcs: int = 10  # components a residual input removes (a list: an axis)
     # random: drawn weights; pca: the linear start, the hidden layer at the PCA solution of

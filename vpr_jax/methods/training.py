@@ -42,7 +42,8 @@ def is_residual(input: str) -> bool:
 
 
 def is_standardised(input: str) -> bool:
-    """Whether each image is standardised before the model (else centred)."""
+    """Whether each image is standardised before the model (else the FAE centres it and
+    the CAE takes it as it is)."""
     return input in ("standardised", "residual")
 
 
