@@ -157,13 +157,22 @@ def test_a_logdir_from_before_inputs_resumes_and_a_changed_one_is_refused(tmp_pa
     for method in ("raw", "lda"):
         config[method].pop("input")
     config["lda"]["standardise"] = False
+    _resumes_and_a_change_is_refused(args, logdir, config, 2, "lda", {"standardise": True})
+
+
+def _resumes_and_a_change_is_refused(args, logdir, config: dict, cells: int, method, change):
+    """The sweep resumes ``logdir`` with its config.yaml rewritten to ``config`` (every
+    cell already there); with ``change`` made to ``config[method]`` it is another
+    configuration, refused in one line."""
+    import yaml
+
     (logdir / "config.yaml").write_text(yaml.safe_dump(config))
     again = run_here(*args, f"logdir={logdir}")
     assert again.returncode == 0, again.stderr[-2000:]
-    assert "resuming: 2 of 2 cells already in results.csv" in again.stdout
-    config["lda"]["standardise"] = True
+    assert f"resuming: {cells} of {cells} cells already in results.csv" in again.stdout
+    config[method].update(change)
     (logdir / "config.yaml").write_text(yaml.safe_dump(config))
-    assert_one_line_error(run_here(*args, f"logdir={logdir}"), "different configuration", "lda")
+    assert_one_line_error(run_here(*args, f"logdir={logdir}"), "different configuration", method)
 
 
 def test_an_autoencoder_s_old_input_and_standardise_resume_as_one_input(tmp_path):
@@ -194,13 +203,7 @@ def test_an_autoencoder_s_old_input_and_standardise_resume_as_one_input(tmp_path
     config = yaml.safe_load((logdir / "config.yaml").read_text())
     assert config["fae"]["input"] == "standardised"
     config["fae"].update(input="pixels", standardise=True)
-    (logdir / "config.yaml").write_text(yaml.safe_dump(config))
-    again = run_here(*args, f"logdir={logdir}")
-    assert again.returncode == 0, again.stderr[-2000:]
-    assert "resuming: 1 of 1 cells already in results.csv" in again.stdout
-    config["fae"]["standardise"] = False
-    (logdir / "config.yaml").write_text(yaml.safe_dump(config))
-    assert_one_line_error(run_here(*args, f"logdir={logdir}"), "different configuration", "fae")
+    _resumes_and_a_change_is_refused(args, logdir, config, 1, "fae", {"standardise": False})
 
 
 @pytest.mark.parametrize(
