@@ -26,7 +26,13 @@ from vpr_jax.files import atomic_write_text, replace_folder
 from vpr_jax.method_table import METHODS, NAMES, model_label
 from vpr_jax.methods import settings as method_settings
 from vpr_jax.methods.contract import ROWS
-from vpr_jax.outputs.palette import OBJECTIVE_ORDER, compare_labels, curve_label, label_of
+from vpr_jax.outputs.palette import (
+    OBJECTIVE_ORDER,
+    chart_groups,
+    compare_labels,
+    curve_label,
+    label_of,
+)
 from vpr_jax.outputs.plots import (
     NotScored,
     by_label,
@@ -296,7 +302,8 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
     whole: recall@1 and AUC-PR against the removed count (several seeds: their mean), and
     the PR curve of the setting the validation places choose (pooled over seeds). Runs are
     written one after another in ``palette.compare_labels`` order, which is how TensorBoard
-    colours them (``vpr_jax.outputs.palette``); a method without the removed-PC axis is a
+    colours them, each run's tags under its chart group (``palette.chart_groups``: at most
+    seven runs a chart, each its own colour); a method without the removed-PC axis is a
     flat line over its pair's counts."""
     shortest = min(r.ds for r in rows)
     every = [r for r in rows if r.ds == shortest]
@@ -304,6 +311,7 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
     staging = logdir / INCOMPLETE / COMPARE
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
+    groups = chart_groups(single)
     for label in compare_labels(single):
         series = {}
         for pair in dict.fromkeys(r.season_pair for r in single):
@@ -328,6 +336,7 @@ def write_tb_compare(logdir: Path, rows: list[ResultRow], curve: Curves, cfg: Sw
         write_method_run(
             staging / label,
             series,
+            group=groups[label],
             pr_convention=cfg.pr_convention,
             n_thresholds=cfg.tb.pr_thresholds,
         )

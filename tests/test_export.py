@@ -421,9 +421,10 @@ def test_the_method_by_method_runs_hold_each_pair(small_sweep):
     assert {p.name for p in (logdir / "compare").iterdir()} == labels
     for label in labels:
         run = read_run(logdir / "compare" / label)
-        assert set(run.Tags()["tensors"]) == {f"pr_curve/{p}" for p in pairs}
+        group = "autoencoders" if label.startswith(("fae", "cae")) else "linear"
+        assert set(run.Tags()["tensors"]) == {f"pr_curve/{p}/{group}" for p in pairs}
         for pair in pairs:
-            recall = {e.step: e.value for e in run.Scalars(f"{pair}/recall_at_1")}
+            recall = {e.step: e.value for e in run.Scalars(f"{pair}/{group}/recall_at_1")}
             assert sorted(recall) == [0, 5, 20], label
             mine = [
                 r

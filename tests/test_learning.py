@@ -239,7 +239,7 @@ def test_train_places_is_a_learning_curve_in_results_figures_and_tensorboard(cur
     pca = [r for r in rows if r.method == "pca" and r.selected]
     recall = {swept_of(r)["train_places"]: r.recall_at_1 for r in pca}
     tb = read_run(logdir / "compare" / "pca")
-    events = tb.Scalars(f"{PAIR}/by_training_places/recall_at_1")
+    events = tb.Scalars(f"{PAIR}/linear/by_training_places/recall_at_1")
     assert [e.step for e in events] == sorted(recall) == PLACES
     assert [e.value for e in events] == pytest.approx([recall[p] for p in PLACES], abs=1e-6)
     # The other charts show the largest value of training places.
@@ -248,7 +248,7 @@ def test_train_places_is_a_learning_curve_in_results_figures_and_tensorboard(cur
         for r in rows
         if r.method == "pca" and swept_of(r)["train_places"] == max(PLACES)
     }
-    events = tb.Scalars(f"{PAIR}/recall_at_1")
+    events = tb.Scalars(f"{PAIR}/linear/recall_at_1")
     assert {e.step: e.value for e in events} == pytest.approx(largest, abs=1e-6)
 
 

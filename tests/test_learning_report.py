@@ -11,7 +11,14 @@ from tests.conftest import TINY_ROUTE, run_here
 from vpr_jax.command_line import parse_config
 from vpr_jax.method_table import NAMES, model_label
 from vpr_jax.outputs import plots
-from vpr_jax.outputs.palette import OBJECTIVE_ORDER, curve_styles
+from vpr_jax.outputs.palette import (
+    OBJECTIVE_ORDER,
+    TB_PALETTE,
+    chart_groups,
+    compare_labels,
+    curve_styles,
+    label_of,
+)
 from vpr_jax.outputs.results import ResultRow, swept_columns
 
 PAIR = "summer-fall"
@@ -69,6 +76,31 @@ def test_learning_curve_colours_are_fixed_by_method_and_objective_and_all_distin
     assert few["raw"]["color"] != few["cae_contrastive"]["color"]
     for name, style in few.items():  # whatever else the sweep runs
         assert style == styles[name]
+
+
+def test_every_compare_chart_shows_each_of_tensorboards_colours_once():
+    """The compare runs are coloured by position (run i: TB_PALETTE[i % 7]); a chart shows
+    one chart group's runs: each group's positions are consecutive and at most seven, so no
+    chart repeats a colour, whatever the sweep runs (here 13 linear labels, the four
+    auto-encoder models, a user's method)."""
+    rows = [_row(m, 132, 0.7) for m in ("raw", "pca", "diff_pca", "ica", "lda", "edges")]
+    rows += [_row(m, 132, 0.7, o) for m in ("fae", "cae") for o in ("reconstruct", "contrastive")]
+    lda = _row("lda", 132, 0.7)
+    rows += [  # eight more lda labels, one per swept value
+        lda._replace(**swept_columns({"n_components": n, "train_places": 132}))
+        for n in range(10, 18)
+    ]
+    labels = compare_labels(rows)
+    groups = chart_groups(rows)
+    assert set(groups) == set(labels) and len(labels) == 18
+    for group in set(groups.values()):
+        positions = [i for i, name in enumerate(labels) if groups[name] == group]
+        assert positions == list(range(positions[0], positions[0] + len(positions))), group
+        colours = [TB_PALETTE[i % len(TB_PALETTE)] for i in positions]
+        assert len(colours) == len(set(colours)), group
+    assert {groups[label_of(r)] for r in rows if r.objective} == {"autoencoders"}
+    assert groups["edges"] == "yours"
+    assert {groups[n] for n in labels if groups[n].startswith("linear")} == {"linear_1", "linear_2"}
 
 
 def test_learning_curve_figure_fits_its_axis_draws_intervals_and_marks_a_point_not_scored(

@@ -6,9 +6,11 @@ its run list (ordered by each run's first event, then by name) from the 7-colour
 below; nothing in an event file can choose a colour. So the runs of ``LOGDIR/compare`` are
 written one after another in ``compare_labels`` order, run i shows ``TB_PALETTE[i % 7]``
 when TensorBoard opens on that folder, and the figures draw label i in that same colour.
-From the eighth label on TensorBoard repeats its colours; the figures draw those labels
-dashed so they stay apart there. A method's colour there follows its place in the sweep's
-list of labels, not a fixed one.
+From the eighth label on TensorBoard repeats its colours, so each run's tags name its
+family's chart group (``chart_groups``: linear methods, auto-encoders, yours; at most seven
+runs a group, consecutive in the list): every chart shows each colour once. The figures,
+which draw every label on one axes, draw the eighth and later dashed. A method's colour
+there follows its place in the sweep's list of labels, not a fixed one.
 
 The learning-curve figure is no TensorBoard view: its lines keep one colour whatever else
 a sweep runs (``curve_styles``), a hue per method in the method table's order and a shade
@@ -65,6 +67,34 @@ def compare_labels(rows: list[ResultRow], label=label_of) -> list[str]:
     """Every label of ``rows`` once, in the method table's order (users' methods and outside
     sets after the built-in ones, by name; the paper's objective first)."""
     return list(dict.fromkeys(label(r) for r in sorted(rows, key=_rank)))
+
+
+def family_of(row: ResultRow) -> str:
+    """The method family a row's compare run is charted with: ``linear`` (the built-in
+    methods without an objective), ``autoencoders`` (with one), ``yours`` (users' methods
+    and outside sets): in ``compare_labels`` order each family's labels are consecutive."""
+    if row.method not in NAMES:
+        return "yours"
+    return "autoencoders" if row.objective else "linear"
+
+
+def chart_groups(rows: list[ResultRow], label=label_of) -> dict[str, str]:
+    """label -> the chart group of its compare run's tags: its family, cut into groups of
+    at most ``len(TB_PALETTE)`` labels in ``compare_labels`` order (``linear_1``,
+    ``linear_2`` where a family has more). A group's runs are consecutive in TensorBoard's
+    run list, so its charts never show one colour twice."""
+    family = {label(r): family_of(r) for r in rows}
+    labels = compare_labels(rows, label)
+    sizes = {f: sum(family[name] == f for name in labels) for f in set(family.values())}
+    seen: dict[str, int] = {}
+    out = {}
+    for name in labels:
+        f = family[name]
+        i = seen.get(f, 0)
+        seen[f] = i + 1
+        chunk = len(TB_PALETTE)
+        out[name] = f if sizes[f] <= chunk else f"{f}_{i // chunk + 1}"
+    return out
 
 
 def styles(rows: list[ResultRow], label=label_of) -> dict[str, dict]:

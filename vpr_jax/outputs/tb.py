@@ -233,19 +233,26 @@ class CompareSeries(NamedTuple):
 
 
 def write_method_run(
-    run_dir: Path, series: dict[str, CompareSeries], *, pr_convention: str, n_thresholds: int
+    run_dir: Path,
+    series: dict[str, CompareSeries],
+    *,
+    group: str,
+    pr_convention: str,
+    n_thresholds: int,
 ) -> None:
     """A method's run of the method-by-method view (``LOGDIR/compare/<method>``), its tags
-    per pair: ``pr_curve/<pair>`` (its selected cell's curve, so PR CURVES overlays the
-    methods of a pair in one chart) and ``<pair>/recall_at_1``, ``<pair>/auc_pr`` with the
-    removed-PC count as the step (a chart per pair and metric, a line per method); a
-    learning curve (``split.train_places``) as ``<pair>/by_training_places/recall_at_1``
-    and ``.../auc_pr`` with the training places as the step."""
+    per pair and chart ``group`` (its family's: ``palette.chart_groups``):
+    ``pr_curve/<pair>/<group>`` (its selected cell's curve, so PR CURVES overlays the
+    group's methods of a pair in one chart) and ``<pair>/<group>/recall_at_1``,
+    ``.../auc_pr`` with the removed-PC count as the step (a chart per pair, group and
+    metric, a line per method); a learning curve (``split.train_places``) as
+    ``<pair>/<group>/by_training_places/recall_at_1`` and ``.../auc_pr`` with the training
+    places as the step."""
     writer = SummaryWriter(str(run_dir))
     for pair, s in series.items():
         _add_pr_curve(
             writer,
-            f"pr_curve/{pair}",
+            f"pr_curve/{pair}/{group}",
             s.best_scores,
             s.best_correct,
             s.has_match,
@@ -253,10 +260,10 @@ def write_method_run(
             n_thresholds,
         )
         for k, recall_at_1, auc_pr in s.points:
-            writer.add_scalar(f"{pair}/recall_at_1", float(recall_at_1), global_step=k)
-            writer.add_scalar(f"{pair}/auc_pr", float(auc_pr), global_step=k)
+            writer.add_scalar(f"{pair}/{group}/recall_at_1", float(recall_at_1), global_step=k)
+            writer.add_scalar(f"{pair}/{group}/auc_pr", float(auc_pr), global_step=k)
         for places, recall_at_1, auc_pr in s.learning:
-            tag = f"{pair}/by_training_places"
+            tag = f"{pair}/{group}/by_training_places"
             writer.add_scalar(f"{tag}/recall_at_1", float(recall_at_1), global_step=places)
             writer.add_scalar(f"{tag}/auc_pr", float(auc_pr), global_step=places)
     _closed(writer)
