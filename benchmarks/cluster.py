@@ -29,9 +29,11 @@ The same for the whole route with seeds: ``preset=full seeds=[...]`` on two work
 core each (``threads=share``; its fits: raw, pca and ica per pair, ica once per seed; the
 rest is its wall time less the greedy schedule of its fits on two workers).
 
-``--tiny`` (for the tests): a 240-frame route with raw and pca and two seeds of ica, one
-pair; the two workers' share run stands for the one-worker and the default runs too (the
-same code, other keys) and for both projections; the figures mean nothing.
+``--tiny`` (for the tests): a 240-frame route with raw and pca and two seeds of ica and of
+a tiny FAE, one pair; the two workers' share run stands for the one-worker and the default
+runs too (the same code, other keys) and for both projections; the figures mean nothing.
+With ``--keep``, the tests also compare the runs' results.csv (tests/test_sharding.py: the
+two processes' rows are the one process's).
 """
 
 from __future__ import annotations
@@ -56,9 +58,13 @@ TINY = [
     "split.n_test=50",
     "split.gap=10",
     "season_pairs=summer-fall",
-    "methods=[raw,pca,ica]",
+    "methods=[raw,pca,ica,fae]",
     "removed_pcs=[0,5]",
     "ica.n_components=8",
+    "fae.hidden=16",
+    "fae.epochs=2",
+    "fae.objective=reconstruct",
+    "train.batch_size=16",
     "seeds=[0,1]",
 ]
 # a fit's line in sweep.log (experiments.cluster): pair, fit folder, seconds

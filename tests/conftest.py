@@ -26,7 +26,7 @@ REPO = Path(__file__).resolve().parent.parent
 # The small runs of the end-to-end tests, in one place (a later key=value overrides an
 # earlier one): routes, and auto-encoders small enough to train in a second.
 TINY_ROUTE = ["data.n_frames=400", "split.n_train=150", "split.n_test=60", "split.gap=10"]
-SMALL_ROUTE = ["data.n_frames=700", "split.n_train=300", "split.n_test=120", "split.gap=20"]
+SMALL_ROUTE = ["data.n_frames=440", "split.n_train=160", "split.n_test=60", "split.gap=20"]
 TINY_MODELS = ["fae.hidden=32", "cae.channels=[4,8]", "cae.code_channels=2"]
 # A small but complete sweep: the three default pairs, every method, three removed-PC counts
 # and tiny auto-encoders trained for two epochs.
@@ -380,6 +380,25 @@ def small_sweep(tmp_path_factory):
     """One finished small sweep shared by the end-to-end tests of every worker (read-only
     for them): ``(logdir, the finished process)``."""
     return shared_sweep(tmp_path_factory, "small_sweep", *SMALL)
+
+
+@pytest.fixture(scope="session")
+def cluster_benchmark(tmp_path_factory):
+    """``benchmarks/cluster.py --tiny --keep``, run once per session for every test that
+    reads it (its printout and its Ray run's rows: test_benchmark_scripts.py; its
+    jax.distributed run's rows: test_sharding.py): ``(stdout, the folder of its runs'
+    logdirs and checkpoints)``.
+    Each of its Ray runs starts and stops a Ray of its own, on ports of its own: it need
+    not wait for test_cluster.py's cluster."""
+
+    def run(folder: Path) -> None:
+        script = REPO / "benchmarks" / "cluster.py"
+        proc = run_process([sys.executable, str(script), "--tiny", "--keep", str(folder / "runs")])
+        assert proc.returncode == 0, (proc.stdout[-3000:], proc.stderr[-3000:])
+        (folder / "stdout.txt").write_text(proc.stdout)
+
+    folder = shared_folder(tmp_path_factory, "cluster_benchmark", run)
+    return (folder / "stdout.txt").read_text(), folder / "runs"
 
 
 def method_settings(cfg, name: str):

@@ -4,8 +4,8 @@
 
 A helper of tests/test_sharding.py: the virtual devices must exist before JAX starts, so
 the checks run in their own process. With FOLDER, the sweep's ``main`` also runs in this
-process, twice: with ``train.batch_size=12`` and ``logdir=FOLDER/runs`` (a batch that does
-not split over the eight devices), reported as ``refusal``, and one pair of the small sweep
+process, twice: ``REFUSED`` into ``logdir=FOLDER/runs`` (a batch that does not split over
+the eight devices), reported as ``refusal``, and one pair of the small sweep
 into ``FOLDER/eight``, reported as ``eight`` (each: exit code, stdout, stderr).
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from tests.conftest import SMALL
+from tests.conftest import SMALL, TINY_ROUTE
 from tests.programs import jaxpr_of, n_products, unpinned
 from vpr_jax import sharding
 from vpr_jax.config import TrainConfig
@@ -132,13 +132,15 @@ def main() -> None:
     out["step_all_reduces"] = hlo.count("all-reduce(")
     if len(sys.argv) > 1:
         folder = sys.argv[1]
-        out["refusal"] = sweep_here("train.batch_size=12", f"logdir={folder}/runs")
+        out["refusal"] = sweep_here(*REFUSED, f"logdir={folder}/runs")
         out["eight"] = sweep_here(
             *EIGHT_DEVICE_SWEEP, f"logdir={folder}/eight", f"train.checkpoint_dir={folder}/ck"
         )
     print(json.dumps(out))
 
 
+# A batch that does not split over the eight devices: the plan refuses it before any fit.
+REFUSED = [*TINY_ROUTE, "season_pairs=summer-fall", "methods=[fae]", "train.batch_size=12"]
 # One pair of the suite's small sweep (tests/conftest.py SMALL), every method but the CAE:
 # test_sharding.py compares its rows with the single-device small sweep's.
 EIGHT_DEVICE_SWEEP = [*SMALL, "season_pairs=summer-fall", "methods=[raw,pca,diff_pca,ica,lda,fae]"]

@@ -191,19 +191,20 @@ def test_scaling(tmp_path, capfd):
     assert plot.stat().st_size > 0
 
 
-def test_cluster():
+def test_cluster(cluster_benchmark):
     """The five rows, the three speed-ups against their goals and both projections, each
-    from its sweep.log (each cluster run starts and stops a Ray of its own, on ports of its
-    own: it need not wait for test_cluster.py's)."""
-    out = run_script("cluster.py", "--tiny")
+    from its sweep.log (the rows of its two processes' run: test_sharding.py; its workers'
+    run at threads=share, a core each, may round otherwise: test_cluster.py compares rows)."""
+    out, _ = cluster_benchmark
     runs = ("one process", "1 worker on 1 core", "1 core each", "threads=node", "2 processes")
     for run in runs:
         line_matching(out, rf"{run}.* +\d+\.\d s$")
     line_matching(out, r"speed-up, 2 workers over 1 worker: ratio +\d+\.\d\dx \(goal >= 1\.7x")
     line_matching(out, r"speed-up, 2 workers over one process: ratio +\d+\.\d\dx \(goal >= 1x")
     line_matching(out, r"speed-up, 2 workers \(threads=node\) over one process: ratio +\d")
-    # raw; pca, whose fit serves both removed counts; ica at each removed count, two seeds
-    assert len(re.findall(r"projection, .*: 6 fits, ", out)) == 2, out
+    # raw; pca, whose fit serves both removed counts; ica at each removed count and the
+    # FAE, two seeds each
+    assert len(re.findall(r"projection, .*: 8 fits, ", out)) == 2, out
     for n in (4, 16, 64):
         assert len(re.findall(rf"^ +{n} workers: at least +\d+\.\d s", out, re.M)) == 2
 

@@ -70,7 +70,8 @@ def two_nodes(tmp_path_factory):
     with one_ray_at_a_time(tmp_path_factory), pytest.MonkeyPatch.context() as env:
         env.setenv("PYTHONPATH", f"{mine}:{sys.path[0]}")
         env.setenv("RAY_USAGE_STATS_ENABLED", "0")  # nothing sent off this machine
-        cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+        head = {"num_cpus": 1, "include_dashboard": False}  # nothing here reads it
+        cluster = Cluster(initialize_head=True, head_node_args=head)
         try:
             cluster.add_node(num_cpus=1)
             cluster.wait_for_nodes()

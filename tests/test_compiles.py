@@ -9,8 +9,8 @@ import pytest
 from tests.conftest import REPO, SMALL, run_process
 
 BASE = [k for k in SMALL if not k.startswith(("removed_pcs", "train.epochs", "fae.epochs"))]
-# Four database blocks and a padded last query block (120 test places per season).
-BASE += ["ica.n_components=16", "matching.block_size=32"]
+# Four database blocks and a padded last query block (60 test places per season).
+BASE += ["ica.n_components=16", "matching.block_size=16"]
 
 
 def _sweep(*overrides: str) -> str:

@@ -31,8 +31,8 @@ def test_results_table_has_one_row_per_cell(small_sweep):
     assert {r.season_pair for r in rows} == PAIRS
     for r in rows:
         assert r.db_season + "-" + r.query_season == r.season_pair
-        # 300 places per season: 30 validate, 20 are the gap before them, 250 train
-        assert r.n_train == 500 and r.n_test == 120 and r.tolerance == 2
+        # 160 places per season: 16 validate, 20 are the gap before them, 124 train
+        assert r.n_train == 248 and r.n_test == 60 and r.tolerance == 2
         assert 0.0 <= r.val_recall_at_1 <= 1.0
         assert r.recall_at_1_ci_low <= r.recall_at_1 <= r.recall_at_1_ci_high
         assert r.auc_pr_ci_low <= r.auc_pr <= r.auc_pr_ci_high
@@ -241,12 +241,13 @@ def test_olid_sections_match_queries_against_the_whole_database_season(tmp_path)
         f"logdir={logdir}",
     )
     # Oracle: numpy brute force over every frame of the database season.
-    route = synthetic_route(700, ("summer", "fall"), 0)
+    n = int(next(k for k in SMALL if k.startswith("data.n_frames=")).split("=")[1])
+    route = synthetic_route(n, ("summer", "fall"), 0)
     split = make_split(route.frame_ids, SplitConfig(test_sections=2, n_test=60, gap=20))
-    stretch = 700 - 120 - 4 * 20  # frames more than the gap from both test sections
+    stretch = n - 120 - 4 * 20  # frames more than the gap from both test sections
     n_val = round(0.1 * stretch)
     assert row.n_test == 120 and row.n_train == 2 * len(split.train) == 2 * (stretch - n_val - 20)
-    flat = {s: route.images[s].reshape(700, -1).astype(np.float64) for s in ("summer", "fall")}
+    flat = {s: route.images[s].reshape(n, -1).astype(np.float64) for s in ("summer", "fall")}
     mean = np.concatenate([flat["summer"][split.train], flat["fall"][split.train]]).mean(0)
     db = flat["summer"] - mean
     query = flat["fall"][split.test] - mean
