@@ -15,8 +15,10 @@ Exit code 0 when the tests pass and the two sweeps agree, 1 otherwise; the lines
 Where the device is the CPU, step 2 compares two CPU runs (they must be identical).
 
 ``--tiny`` (for the tests): five oracle tests, a 400-frame sweep of raw and PCA, and
-``run_all.py --tiny --skip-scaling``. ``--out``: keep both sweeps' logdirs and run_all's
-table as JSON there (default: a temporary folder, removed).
+``run_all.py --tiny --skip-scaling``; where the device is the CPU, the sweeps and run_all
+run in this process (the oracle tests, under pytest, in one of their own). ``--out``: keep
+both sweeps' logdirs and run_all's table as JSON there (default: a temporary folder,
+removed).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import runpy
 import subprocess
 import sys
 import tempfile
@@ -31,7 +34,7 @@ import time
 from pathlib import Path
 
 import jax
-from common import TINY_HELP
+from common import TINY_HELP, sweep_in_fresh_process
 
 from vpr_jax.outputs.results import ResultRow, read_results
 
@@ -121,8 +124,19 @@ def oracle_tests(platform: str, tiny: bool) -> bool:
     return proc.returncode == 0
 
 
+def here(tiny: bool, platform: str) -> bool:
+    """Whether a step runs in this process: ``--tiny`` on the CPU, where this process's JAX
+    is already the one the step needs and a fresh interpreter's start would be most of the
+    step (as ``run_all.py --tiny`` runs its sweep)."""
+    return tiny and platform == "cpu"
+
+
 def sweep(platform: str, logdir: Path, tiny: bool) -> list[ResultRow]:
     """The default sweep (``tiny``: ``TINY_SWEEP``) on ``platform`` into ``logdir``."""
+    if here(tiny, platform):
+        wall, _ = sweep_in_fresh_process(TINY_SWEEP, logdir, fresh=False)
+        print(f"  {wall:.0f} s", flush=True)
+        return read_results(logdir / "results.csv")
     args = [*(TINY_SWEEP if tiny else []), f"logdir={logdir}"]
     args.append(f"train.checkpoint_dir={logdir.parent / 'checkpoints' / logdir.name}")
     start = time.perf_counter()
@@ -186,11 +200,27 @@ def sweeps_agree(platform: str, out: Path, tiny: bool) -> bool:
 def run_all(platform: str, out: Path, tiny: bool) -> bool:
     """Step 3: run_all's table on ``platform`` (and as JSON in ``out``)."""
     options = [*(TINY_RUN_ALL if tiny else RUN_ALL), "--json", str(out / "run_all.json")]
+    if here(tiny, platform):
+        return main_here(REPO / "benchmarks" / "run_all.py", options)
     proc = run([sys.executable, "benchmarks/run_all.py", *options], platform)
     print(proc.stdout, flush=True)
     if proc.returncode != 0:
         print(proc.stderr[-3000:])
     return proc.returncode == 0
+
+
+def main_here(script: Path, argv: list[str]) -> bool:
+    """``python SCRIPT ARGV`` as its ``__main__`` in this process (the command line
+    printed): whether it ended well."""
+    saved, sys.argv = sys.argv, [str(script), *argv]
+    print(f"$ {' '.join(sys.argv)}  (in this process)", flush=True)
+    try:
+        runpy.run_path(str(script), run_name="__main__")
+    except SystemExit as stop:
+        return not stop.code
+    finally:
+        sys.argv = saved
+    return True
 
 
 def main() -> None:
