@@ -215,6 +215,40 @@ def test_contact_sheet_bad_arguments_print_one_line_and_exit_2(tmp_path, args):
     assert not (tmp_path / "x.png").exists()
 
 
+def test_a_small_route_is_rendered_once_per_process_read_only_and_a_large_one_never_kept(
+    monkeypatch,
+):
+    """The sweep's ``kept_route``: the same pixels as ``synthetic_route``; asked again, the
+    same arrays, read-only, nothing rendered; a route past ``KEPT_BYTES`` is rendered each
+    time; the least recently asked for route goes first."""
+    from vpr_jax.data.synthetic import api
+
+    monkeypatch.setattr(api, "_kept", type(api._kept)())
+    monkeypatch.setattr(api, "KEPT_BYTES", 2 * 30 * 32 * 64 * 4)  # two seasons of 30 frames
+    fresh = synthetic_route(30, ("summer", "fall"), seed=2)
+    rendered = []
+    render = api.render_season
+    monkeypatch.setattr(
+        api, "render_season", lambda ids, s, **k: rendered.append(s) or render(ids, s, **k)
+    )
+    first = api.kept_route(30, ("summer", "fall"), seed=2)
+    again = api.kept_route(30, ("summer", "fall"), seed=2)
+    assert rendered == ["summer", "fall"]
+    for season in ("summer", "fall"):
+        assert again.images[season] is first.images[season]
+        np.testing.assert_array_equal(first.images[season], fresh.images[season])
+        with pytest.raises(ValueError, match="read-only"):
+            first.images[season][0, 0, 0] = 1.0
+    again.images["winter"] = fresh.images["fall"]  # a caller's own dict
+    assert set(api.kept_route(30, ("summer", "fall"), seed=2).images) == {"summer", "fall"}
+    api.kept_route(31, ("summer", "fall"), seed=2)  # past the bound: rendered, not kept
+    api.kept_route(31, ("summer", "fall"), seed=2)
+    assert rendered[2:] == ["summer", "fall"] * 2
+    assert [key[:2] for key in api._kept] == [(30, ("summer", "fall"))]
+    api.kept_route(30, "spring", seed=2)  # the bound holds: the older route goes
+    assert [key[:2] for key in api._kept] == [(30, ("spring",))]
+
+
 # ----------------------------------------------------------------------------- properties
 
 

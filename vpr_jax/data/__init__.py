@@ -28,9 +28,9 @@ def load_route(cfg: DataConfig, seed: int, log: Log = print) -> Route:
     constant frames (reported; dropped with ``data.drop_constant_frames``). Raises
     UserError on bad data."""
     if cfg.source == "synthetic":
-        from vpr_jax.data.synthetic import synthetic_route
+        from vpr_jax.data.synthetic.api import kept_route
 
-        route = synthetic_route(cfg.n_frames, cfg.seasons, seed=seed, frame_step=cfg.frame_step)
+        route = kept_route(cfg.n_frames, cfg.seasons, seed=seed, frame_step=cfg.frame_step)
     else:
         from vpr_jax.data.nordland import load_nordland
 

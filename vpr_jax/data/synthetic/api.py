@@ -1,8 +1,10 @@
 """The built-in route's public entry points: render places of one ride, or build the
-frame-aligned :class:`Route` of several seasons; both check their inputs."""
+frame-aligned :class:`Route` of several seasons; both check their inputs. ``kept_route``
+is the sweep's: a small route rendered once per process."""
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Iterable
 
 import numpy as np
@@ -79,6 +81,13 @@ def synthetic_route(
 ) -> Route:
     """The built-in route: ``frame_ids = arange(0, n_frames, frame_step)``, traversal 0 of
     every season, as a frame-aligned :class:`Route`."""
+    n_frames, seasons, frame_step = _checked_route(n_frames, seasons, frame_step)
+    frame_ids = np.arange(0, n_frames, frame_step, dtype=np.int64)
+    images = {season: render_season(frame_ids, season, seed=seed) for season in seasons}
+    return Route(frame_ids, images)
+
+
+def _checked_route(n_frames, seasons, frame_step) -> tuple[int, tuple[str, ...], int]:
     n_frames = _check_int(n_frames, "n_frames", 1)
     frame_step = _check_int(frame_step, "frame_step", 1)
     seasons = (seasons,) if isinstance(seasons, str) else tuple(seasons)
@@ -88,6 +97,41 @@ def synthetic_route(
         _check_season(season)
     if len(set(seasons)) != len(seasons):
         raise UserError(f"season listed twice in {', '.join(seasons)}: name each season once")
-    frame_ids = np.arange(0, n_frames, frame_step, dtype=np.int64)
-    images = {season: render_season(frame_ids, season, seed=seed) for season in seasons}
-    return Route(frame_ids, images)
+    return n_frames, seasons, frame_step
+
+
+# Small routes a process keeps once rendered (``kept_route``): the bytes of all their seasons.
+KEPT_BYTES = 64 << 20
+_kept: OrderedDict[tuple, Route] = OrderedDict()
+
+
+def kept_route(
+    n_frames: int = DEFAULT_N_FRAMES,
+    seasons: Iterable[str] = ("spring", "summer", "fall"),
+    seed: int = 0,
+    frame_step: int = 1,
+) -> Route:
+    """``synthetic_route``, kept by this process for the next sweep that asks for the same
+    route (a notebook's, a benchmark's, the tests' many small sweeps), which then renders
+    nothing. A route of ``KEPT_BYTES`` or less (all its seasons) is kept, up
+    to ``KEPT_BYTES`` of routes, the least recently asked for going first; a larger one is
+    rendered every time and never kept. Its arrays are read-only (each caller gets its own
+    ``Route`` and dict): a step that changed them in place would change the next sweep's
+    route, so it fails instead."""
+    key = (*_checked_route(n_frames, seasons, frame_step), _check_int(seed, "seed", 0))
+    route = _kept.get(key)
+    if route is None:
+        route = synthetic_route(n_frames, seasons, seed=seed, frame_step=frame_step)
+        if _nbytes(route) > KEPT_BYTES:
+            return route
+        for array in (route.frame_ids, *route.images.values()):
+            array.flags.writeable = False
+        _kept[key] = route
+        while sum(map(_nbytes, _kept.values())) > KEPT_BYTES:
+            _kept.popitem(last=False)
+    _kept.move_to_end(key)
+    return Route(route.frame_ids, dict(route.images), route.files)
+
+
+def _nbytes(route: Route) -> int:
+    return sum(a.nbytes for a in route.images.values())
