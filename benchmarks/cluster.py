@@ -31,9 +31,10 @@ rest is its wall time less the greedy schedule of its fits on two workers).
 
 ``--tiny`` (for the tests): a 240-frame route with raw and pca and two seeds of ica and of
 a tiny FAE, one pair; the two workers' share run stands for the one-worker and the default
-runs too (the same code, other keys) and for both projections; the figures mean nothing.
-With ``--keep``, the tests also compare the runs' results.csv (tests/test_sharding.py: the
-two processes' rows are the one process's).
+runs too (the same code, other keys) and for both projections, and the one process's run
+is the sweep's main in this process; the figures mean nothing. With ``--keep``, the tests
+also compare the runs' results.csv (tests/test_sharding.py: the two processes' rows are
+the one process's).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import TINY_HELP, cpu_name
+from common import TINY_HELP, cpu_name, sweep_in_fresh_process
 
 REPO = Path(__file__).resolve().parent.parent
 TIMEOUT_S = 3 * 3600  # one sweep's run, at most (the tests' --tiny: their own limit)
@@ -186,7 +187,10 @@ def main() -> None:
         local = ["cluster.address=local"]
         if opts.warm_up:  # compiles what the runs below then take from the cache
             sweep(args, root / "warm_up")
-        one = sweep(args, root / "one_process")
+        if opts.tiny:  # the sweep's main in this process: a fresh one is most of a tiny run
+            one, _ = sweep_in_fresh_process(args, root / "one_process", fresh=False)
+        else:
+            one = sweep(args, root / "one_process")
         share = [*local, "cluster.threads=share"]
         one_worker = [*share, "cluster.workers=1", "cluster.cores_per_worker=1"]
         workers = sweep([*args, *share, "cluster.workers=2"], root / "two_workers")

@@ -31,8 +31,8 @@ def test_results_table_has_one_row_per_cell(small_sweep):
     assert {r.season_pair for r in rows} == PAIRS
     for r in rows:
         assert r.db_season + "-" + r.query_season == r.season_pair
-        # 160 places per season: 16 validate, 20 are the gap before them, 124 train
-        assert r.n_train == 248 and r.n_test == 60 and r.tolerance == 2
+        # 150 places per season: 15 validate, 10 are the gap before them, 125 train
+        assert r.n_train == 250 and r.n_test == 60 and r.tolerance == 2
         assert 0.0 <= r.val_recall_at_1 <= 1.0
         assert r.recall_at_1_ci_low <= r.recall_at_1 <= r.recall_at_1_ci_high
         assert r.auc_pr_ci_low <= r.auc_pr <= r.auc_pr_ci_high
