@@ -387,9 +387,8 @@ def small_sweep(tmp_path_factory):
 @pytest.fixture(scope="session")
 def cluster_benchmark(tmp_path_factory):
     """``benchmarks/cluster.py --tiny --keep``, run once per session for every test that
-    reads it (its printout and its Ray run's rows: test_benchmark_scripts.py; its
-    jax.distributed run's rows: test_sharding.py): ``(stdout, the folder of its runs'
-    logdirs and checkpoints)``.
+    reads it (its printout: test_benchmark_scripts.py; its jax.distributed run's rows:
+    test_sharding.py): ``(stdout, the folder of its runs' logdirs and checkpoints)``.
     Each of its Ray runs starts and stops a Ray of its own, on ports of its own: it need
     not wait for test_cluster.py's cluster."""
 

@@ -231,8 +231,8 @@ def test_a_small_route_is_rendered_once_per_process_read_only_and_a_large_one_ne
     monkeypatch.setattr(
         api, "render_season", lambda ids, s, **k: rendered.append(s) or render(ids, s, **k)
     )
-    first = api.kept_route(30, ("summer", "fall"), seed=2)
-    again = api.kept_route(30, ("summer", "fall"), seed=2)
+    first = api.kept_route(30, ("summer", "fall"), seed=2, frame_step=1)
+    again = api.kept_route(30, ("summer", "fall"), seed=2, frame_step=1)
     assert rendered == ["summer", "fall"]
     for season in ("summer", "fall"):
         assert again.images[season] is first.images[season]
@@ -240,12 +240,17 @@ def test_a_small_route_is_rendered_once_per_process_read_only_and_a_large_one_ne
         with pytest.raises(ValueError, match="read-only"):
             first.images[season][0, 0, 0] = 1.0
     again.images["winter"] = fresh.images["fall"]  # a caller's own dict
-    assert set(api.kept_route(30, ("summer", "fall"), seed=2).images) == {"summer", "fall"}
-    api.kept_route(31, ("summer", "fall"), seed=2)  # past the bound: rendered, not kept
-    api.kept_route(31, ("summer", "fall"), seed=2)
+    assert set(api.kept_route(30, ("summer", "fall"), seed=2, frame_step=1).images) == {
+        "summer",
+        "fall",
+    }
+    api.kept_route(
+        31, ("summer", "fall"), seed=2, frame_step=1
+    )  # past the bound: rendered, not kept
+    api.kept_route(31, ("summer", "fall"), seed=2, frame_step=1)
     assert rendered[2:] == ["summer", "fall"] * 2
     assert [key[:2] for key in api._kept] == [(30, ("summer", "fall"))]
-    api.kept_route(30, "spring", seed=2)  # the bound holds: the older route goes
+    api.kept_route(30, "spring", seed=2, frame_step=1)  # the bound holds: the older route goes
     assert [key[:2] for key in api._kept] == [(30, ("spring",))]
 
 

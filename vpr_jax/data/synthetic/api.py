@@ -105,12 +105,7 @@ KEPT_BYTES = 64 << 20
 _kept: OrderedDict[tuple, Route] = OrderedDict()
 
 
-def kept_route(
-    n_frames: int = DEFAULT_N_FRAMES,
-    seasons: Iterable[str] = ("spring", "summer", "fall"),
-    seed: int = 0,
-    frame_step: int = 1,
-) -> Route:
+def kept_route(n_frames: int, seasons: Iterable[str], seed: int, frame_step: int) -> Route:
     """``synthetic_route``, kept by this process for the next sweep that asks for the same
     route (a notebook's, a benchmark's, the tests' many small sweeps), which then renders
     nothing. A route of ``KEPT_BYTES`` or less (all its seasons) is kept, up
