@@ -232,6 +232,13 @@ def _fails(info: MethodInfo, step: str, err: Exception) -> UserError:
     )
 
 
+@jax.jit
+def _all_finite(descriptors) -> jax.Array:
+    """Whether every value is finite: one program per shape (as eager ``isfinite`` and
+    ``all``, it was two, each compiled for every shape an encoder returns)."""
+    return jnp.isfinite(descriptors).all()
+
+
 def checked_encode(info: MethodInfo, encode: Callable, jit: bool = True) -> Callable:
     """A method's ``encode`` (jitted for a user's: the contract asks for a jittable one,
     traced with float32 products where it states none, as ``load_encoder`` hands it out),
@@ -254,7 +261,7 @@ def checked_encode(info: MethodInfo, encode: Callable, jit: bool = True) -> Call
                 f"method {info.name} ({info.method}): encode gave shape {shape} for "
                 f"{len(images)} images: return one row per image, (n, d) with d >= 1"
             )
-        if not bool(jnp.isfinite(out).all()):
+        if not bool(_all_finite(out)):
             raise UserError(
                 f"method {info.name} ({info.method}): encode gave NaN or infinite descriptors "
                 f"for {len(images)} images: check its state and its arithmetic"

@@ -132,9 +132,12 @@ def _row_norms(desc):
 
 
 @jax.jit
-def _largest_gap(desc, inv, first):
+def _largest_gap(desc, inv, rows, i, inv_i):
     """The largest distance of a unit row (``desc * inv``; zero rows have ``inv`` 0 and
-    count 0) from ``first``: all point one way when it is tiny."""
+    count 0) from the unit row ``rows[i] * inv_i``: all point one way when it is tiny. The
+    row is taken here, not by an indexing of its own (two more programs to compile for
+    every shape of descriptors)."""
+    first = rows[i].astype(jnp.float32) * inv_i
     unit = desc * inv[:, None]  # fused into the sum: never written out
     gap = jnp.sqrt(jnp.sum((unit - first) ** 2, axis=1))  # cosine to first = 1 - gap^2 / 2
     return jnp.max(jnp.where(inv == 0.0, 0.0, gap))
@@ -169,6 +172,7 @@ def degenerate(desc: Float[Array, "n d"]) -> Degenerate:
     if zero.all():
         return Degenerate(zero, False)
     i = int(np.argmin(zero))  # the first nonzero row
-    first = np.asarray(desc[i], np.float32) * inv[i]
-    gap = max(float(_largest_gap(desc[r], inv[r], first)) for r in rows)
+    # host rows (outside descriptors): hand over that row alone, not all of them
+    source, at = (desc[i][None], 0) if isinstance(desc, np.ndarray) else (desc, i)
+    gap = max(float(_largest_gap(desc[r], inv[r], source, at, inv[i])) for r in rows)
     return Degenerate(zero, gap <= 1e-3 and int((~zero).sum()) > 1)
