@@ -252,8 +252,12 @@ def pytest_configure(config):
       them (no check here depends on the last bits: oracles have tolerances, and runs
       compared with each other run under the same flags). The suite took 6 min 22 s with
       XLA's defaults, 5 min 19-22 s without LLVM's passes, 4 min 12 s with the older
-      generator as well (2 cores, 2026-12-05). JAX looks for no accelerator
-      (``JAX_PLATFORMS=cpu`` unless set);
+      generator as well (2 cores, 2026-12-05). Each program's machine code is generated in
+      one piece, not split over a pool of threads
+      (``--xla_cpu_parallel_codegen_split_count=1``, where jaxlib has it): a small sweep's
+      137 programs compiled in 2.9 CPU-s instead of 3.8 (2-core AMD EPYC, 2026-12-07); its
+      code differs in rounding (lda's ``val_margin`` in the 6th digit), as the flags above
+      already make it. JAX looks for no accelerator (``JAX_PLATFORMS=cpu`` unless set);
     - one cache of XLA's compiled programs for the session: the suite's many small sweeps
       compile the same programs, and reading them back halves each sweep's time. The
       folder is deleted when the session ends. JAX writes an entry without a lock; an entry
@@ -278,6 +282,9 @@ def pytest_configure(config):
             "--xla_backend_optimization_level=0",
             "--xla_cpu_use_fusion_emitters=false"
             if _xla_knows("xla_cpu_use_fusion_emitters")
+            else "",
+            "--xla_cpu_parallel_codegen_split_count=1"
+            if _xla_knows("xla_cpu_parallel_codegen_split_count")
             else "",
             sep=" ",
         ),
