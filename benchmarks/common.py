@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import runpy
 import statistics
 import subprocess
 import sys
@@ -27,6 +28,20 @@ def timed(fn, repeats: int) -> tuple[float, float]:
         jax.block_until_ready(fn())
         runs.append(time.perf_counter() - start)
     return first, statistics.median(runs) if runs else first
+
+
+def run_script(script: Path, argv: list[str]) -> int | str:
+    """``python SCRIPT ARGV`` as its ``__main__`` in this process (a ``--tiny`` run, whose
+    fresh interpreter would pay JAX's import and its compilations again, most of the run):
+    its exit code (0, or what it exited with)."""
+    saved, sys.argv = sys.argv, [str(script), *argv]
+    try:
+        runpy.run_path(str(script), run_name="__main__")
+    except SystemExit as stop:
+        return stop.code or 0
+    finally:
+        sys.argv = saved
+    return 0
 
 
 def cpu_name() -> str:

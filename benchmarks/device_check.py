@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import runpy
 import subprocess
 import sys
 import tempfile
@@ -34,7 +33,7 @@ import time
 from pathlib import Path
 
 import jax
-from common import TINY_HELP, sweep_in_fresh_process
+from common import TINY_HELP, run_script, sweep_in_fresh_process
 
 from vpr_jax.outputs.results import ResultRow, read_results
 
@@ -201,26 +200,14 @@ def run_all(platform: str, out: Path, tiny: bool) -> bool:
     """Step 3: run_all's table on ``platform`` (and as JSON in ``out``)."""
     options = [*(TINY_RUN_ALL if tiny else RUN_ALL), "--json", str(out / "run_all.json")]
     if here(tiny, platform):
-        return main_here(REPO / "benchmarks" / "run_all.py", options)
+        script = REPO / "benchmarks" / "run_all.py"
+        print(f"$ {script} {' '.join(options)}  (in this process)", flush=True)
+        return run_script(script, options) == 0
     proc = run([sys.executable, "benchmarks/run_all.py", *options], platform)
     print(proc.stdout, flush=True)
     if proc.returncode != 0:
         print(proc.stderr[-3000:])
     return proc.returncode == 0
-
-
-def main_here(script: Path, argv: list[str]) -> bool:
-    """``python SCRIPT ARGV`` as its ``__main__`` in this process (the command line
-    printed): whether it ended well."""
-    saved, sys.argv = sys.argv, [str(script), *argv]
-    print(f"$ {' '.join(sys.argv)}  (in this process)", flush=True)
-    try:
-        runpy.run_path(str(script), run_name="__main__")
-    except SystemExit as stop:
-        return not stop.code
-    finally:
-        sys.argv = saved
-    return True
 
 
 def main() -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import re
-import runpy
 import sys
 from pathlib import Path
 
@@ -35,16 +34,15 @@ def run_here(capfd, name: str, *args: str) -> str:
     first on ``sys.path``, as for a script; ``capfd``: the test's captured output, also of
     the processes it starts); asserts it succeeded and returns its stdout. A fresh
     interpreter would pay JAX's import and its compilations again, most of a tiny run."""
-    saved = sys.argv, list(sys.path)
-    sys.argv, sys.path[:0] = [str(BENCHMARKS / name), *args], [str(BENCHMARKS)]
+    saved = list(sys.path)
+    sys.path[:0] = [str(BENCHMARKS)]
     capfd.readouterr()
-    code = 0
     try:
-        runpy.run_path(str(BENCHMARKS / name), run_name="__main__")
-    except SystemExit as stop:
-        code = stop.code or 0
+        from common import run_script
+
+        code = run_script(BENCHMARKS / name, list(args))
     finally:
-        sys.argv, sys.path[:] = saved
+        sys.path[:] = saved
     out, err = capfd.readouterr()
     assert code == 0, (out[-3000:], err[-3000:])
     return out
